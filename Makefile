@@ -1,0 +1,66 @@
+# osgd: two commands do all set-up on a fresh machine:
+#   make test      create .venv if missing, install, run the test suite
+#   make dataset   create .venv if missing, install, build the default dataset
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DATA_DIR ?= data
+PIPELINE ?= pipelines/default.toml
+WORKERS ?=
+
+.PHONY: help install system-deps test test-slow test-all lint dataset golden bench clean-data table
+
+help:
+	@echo "make test       install into .venv and run the tests (the CI entry point)"
+	@echo "make dataset    install and build the default dataset into $(DATA_DIR)/"
+	@echo "make golden     rebuild the golden pipeline and compare with data/manifests/"
+	@echo "make bench      run every stage benchmark"
+	@echo "make table      train and evaluate the five models of Table II (small scale on a CPU)"
+	@echo "make lint       ruff"
+
+# EGL (Mesa software rendering) for pybullet's renderer; optional, installed when missing.
+system-deps:
+	@if ! ldconfig -p 2>/dev/null | grep -q libEGL_mesa; then \
+		if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+			echo "installing Mesa EGL"; \
+			(apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null) \
+				|| echo "warning: Mesa EGL not installed; the renderer falls back to embree"; \
+		else echo "note: Mesa EGL not found; the renderer falls back to embree"; fi; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -d $(VENV) || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+install: system-deps $(STAMP)
+
+test: install
+	$(BIN)/python -m pytest -q
+
+test-slow: install
+	$(BIN)/python -m pytest -q -m slow
+
+test-all: install
+	$(BIN)/python -m pytest -q -m ''
+
+lint: install
+	$(BIN)/ruff check osgd togcrf tests benchmarks
+
+dataset: install
+	$(BIN)/osgd --data-dir $(DATA_DIR) $(if $(WORKERS),--workers $(WORKERS)) run $(PIPELINE)
+
+golden: install
+	$(BIN)/python -m pytest -q -m '' tests/test_golden.py
+
+bench: install
+	@for script in benchmarks/bench_*.py; do echo "== $$script"; $(BIN)/python $$script || exit 1; done
+
+table: install
+	$(BIN)/togcrf reproduce --data $(DATA_DIR) --out runs/table2
+
+clean-data:
+	rm -rf $(DATA_DIR)/models $(DATA_DIR)/grasps $(DATA_DIR)/checks $(DATA_DIR)/scenes $(DATA_DIR)/samples $(DATA_DIR)/cache

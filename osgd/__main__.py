@@ -1,0 +1,3 @@
+from osgd.cli import run
+
+run()

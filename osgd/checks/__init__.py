@@ -1,0 +1,1 @@
+"""The checks stage: simulated grasp trials in pybullet."""

@@ -1,0 +1,271 @@
+"""The ``osgd`` command line.
+
+Every stage is a command that takes ``--config PIPELINE.toml``; ``osgd run``
+runs them all in order; ``osgd status`` shows what is built. Global options
+come before the command: ``osgd --data-dir /scratch/osgd --workers 8 run
+pipelines/default.toml``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from osgd.config import ConfigError
+from osgd.executor import make_executor
+from osgd.pipeline import (
+    COMMAND_STAGES,
+    MissingInputError,
+    load_pipeline,
+    pipeline_status,
+    run_stages,
+    stage_by_name,
+    stages,
+)
+from osgd.stage import StageReport
+from osgd.store import ShardStore
+
+console = Console(stderr=True)
+app = typer.Typer(
+    help="Build task-oriented grasping datasets of stacked objects.\n\n"
+    "Data flows models -> grasps -> checks -> scenes -> samples; each stage writes "
+    "content-addressed Parquet shards under the data dir, skips what is already built "
+    "and resumes after an interruption.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+show_app = typer.Typer(help="Draw pictures of what a data dir holds.", no_args_is_help=True)
+app.add_typer(show_app, name="show")
+
+
+class _Global:
+    data_dir: Path = Path("data")
+    workers: int | None = None
+
+
+@app.callback()
+def main(
+    data_dir: Annotated[
+        Path, typer.Option(envvar="OSGD_DATA_DIR", help="Where shards and manifests are written.")
+    ] = Path("data"),
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Worker processes; default: one per core. 1 runs serially.")
+    ] = None,
+    log_level: Annotated[
+        str, typer.Option(help="debug, info, warning or error.", case_sensitive=False)
+    ] = "warning",
+) -> None:
+    level = getattr(logging, log_level.upper(), None)
+    if not isinstance(level, int):
+        raise typer.BadParameter(f"unknown log level {log_level!r}; use debug, info, warning or error")
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    _Global.data_dir = data_dir
+    _Global.workers = workers
+
+
+ConfigOption = Annotated[Path, typer.Option("--config", "-c", help="Pipeline config (TOML), e.g. pipelines/default.toml.")]
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option("--set", "-s", help="Override a config value: section.key=value (repeatable)."),
+]
+ForceOption = Annotated[bool, typer.Option("--force", help="Rebuild shards even when they are done.")]
+
+
+def _fail(message: str) -> None:
+    console.print(f"[red]error:[/red] {message}")
+    raise typer.Exit(2)
+
+
+def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...], force: bool) -> None:
+    try:
+        config = load_pipeline(config_path, overrides or [])
+    except ConfigError as error:
+        _fail(str(error))
+    pending = [name for name in names if not stage_by_name(name).implemented]
+    if pending:
+        _fail(f"stage(s) {pending} not implemented yet")
+    store = ShardStore(_Global.data_dir)
+    executor = make_executor(_Global.workers)
+    progress = Progress(
+        TextColumn("[bold]{task.description:<8}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    )
+    tasks: dict[str, Any] = {}
+    counts: dict[str, dict[str, int]] = {}
+
+    def on_stage(name: str, total: int) -> None:
+        counts[name] = {"reused": 0, "built": 0, "failed": 0}
+        tasks[name] = progress.add_task(name, total=total, status="")
+
+    def on_item(name: str, item: str, status: str) -> None:
+        counts[name][status] += 1
+        summary = ", ".join(f"{count} {label}" for label, count in counts[name].items() if count)
+        progress.update(tasks[name], advance=1, status=summary)
+
+    try:
+        with progress:
+            reports = run_stages(config, store, executor, names, force=force, on_item=on_item, on_stage=on_stage)
+    except MissingInputError as error:
+        _fail(str(error))
+    failed = False
+    for report in reports:
+        failed |= _print_report(report, store)
+    console.print(f"data dir: {store.root}   manifest: {store.manifest_path(config.pipeline.name)}")
+    if failed:
+        raise typer.Exit(1)
+
+
+def _print_report(report: StageReport, store: ShardStore) -> bool:
+    stage = stage_by_name(report.stage)
+    rows = sum(record.rows for record in report.records)
+    console.print(
+        f"[bold]{report.stage}[/bold]: {len(report.records)} shards, {rows} rows "
+        f"({report.built} built, {report.reused} reused, {len(report.failures)} failed)"
+    )
+    for problem in report.rebuilt:
+        console.print(f"  [yellow]rebuilt[/yellow] {problem}")
+    for item_id, notes in sorted(report.notes.items()):
+        for note in notes:
+            console.print(f"  [yellow]note[/yellow] {item_id}: {note}")
+    for failure in report.failures:
+        console.print(f"  [red]failed[/red] {failure.item_id}: {failure.error}\n{failure.traceback}")
+    summarize = getattr(stage, "summary", None)
+    if summarize is not None and report.records:
+        text = summarize(store, report.records)
+        if text:
+            console.print(text)
+    return not report.ok
+
+
+def _stage_command(command: str, names: tuple[str, ...]) -> None:
+    descriptions = "; ".join(f"{name}: {stage_by_name(name).description}" for name in names)
+
+    def run_command(config: ConfigOption, set_: SetOption = None, force: ForceOption = False) -> None:
+        _run(config, set_, names, force)
+
+    run_command.__doc__ = f"Run the {', '.join(names)} stage(s). {descriptions}"
+    app.command(command)(run_command)
+
+
+for _command, _names in COMMAND_STAGES.items():
+    _stage_command(_command, _names)
+
+
+@app.command("run")
+def run_pipeline(
+    config: Annotated[Path, typer.Argument(help="Pipeline config (TOML).")],
+    set_: SetOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Run every stage of a pipeline config in order."""
+    names = tuple(stage.name for stage in stages())
+    _run(config, set_, names, force)
+
+
+@app.command("status")
+def status(config: ConfigOption, set_: SetOption = None) -> None:
+    """Per stage: shards done, missing, corrupt, and stale (on disk, not in this plan)."""
+    try:
+        pipeline = load_pipeline(config, set_ or [])
+    except ConfigError as error:
+        _fail(str(error))
+    store = ShardStore(_Global.data_dir)
+    table = Table(title=f"{pipeline.pipeline.name} in {store.root}")
+    for column in ("stage", "done", "missing", "corrupt", "stale"):
+        table.add_column(column, justify="left" if column == "stage" else "right")
+    for row in pipeline_status(pipeline, store):
+        name = row.stage if stage_by_name(row.stage).implemented else f"{row.stage} (not implemented yet)"
+        table.add_row(name, str(row.done), str(row.missing), str(row.corrupt), str(row.stale))
+    Console().print(table)
+
+
+def _dispatch(target: str, **kwargs: Any) -> None:
+    """Call ``module:function`` of a stage package; say so if it is not there yet."""
+    module_name, function_name = target.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as error:
+        if error.name == module_name:
+            _fail(f"not implemented yet ({target})")
+        raise
+    function = getattr(module, function_name, None)
+    if function is None:
+        _fail(f"not implemented yet ({target})")
+    try:
+        result = function(store=ShardStore(_Global.data_dir), **kwargs)
+    except (KeyError, ValueError, FileNotFoundError) as error:
+        _fail(str(error))
+    if result is not None:
+        console.print(str(result))
+
+
+OutOption = Annotated[Path, typer.Option("--out", "-o", help="PNG file to write.")]
+
+
+@show_app.command("model")
+def show_model(model_id: str, out: OutOption) -> None:
+    """A model's mesh coloured by part."""
+    _dispatch("osgd.models.pictures:show_model", model_id=model_id, out=out)
+
+
+@show_app.command("models")
+def show_models(out: OutOption) -> None:
+    """A contact sheet of every model in the data dir."""
+    _dispatch("osgd.models.pictures:show_models", out=out)
+
+
+@show_app.command("grasps")
+def show_grasps(
+    model_id: str,
+    out: OutOption,
+    color_by: Annotated[str, typer.Option(help="task, or stability (needs the checks table).")] = "task",
+) -> None:
+    """A model with its grasps drawn as gripper outlines."""
+    _dispatch("osgd.grasps.pictures:show_grasps", model_id=model_id, out=out, color_by=color_by)
+
+
+@show_app.command("scene")
+def show_scene(scene_id: str, out: OutOption) -> None:
+    """A picture of a stacked scene."""
+    _dispatch("osgd.scenes.pictures:show_scene", scene_id=scene_id, out=out)
+
+
+@show_app.command("sample")
+def show_sample(sample_id: str, out: OutOption) -> None:
+    """Depth with boxes and grasp rectangles coloured by task (paper figures 2 and 7)."""
+    _dispatch("osgd.samples.pictures:show_sample", sample_id=sample_id, out=out)
+
+
+@app.command("export")
+def export(
+    out_dir: Annotated[Path, typer.Argument(help="Folder to write into.")],
+    format_: Annotated[str, typer.Option("--format", help="osgd, cornell or coco.")] = "osgd",
+) -> None:
+    """Write the samples in a format peers' tools read."""
+    _dispatch("osgd.samples.export:export", out_dir=out_dir, format=format_)
+
+
+def run() -> None:
+    """Console-script entry point."""
+    os.environ.setdefault("PYTHONHASHSEED", "0")
+    try:
+        app()
+    except KeyboardInterrupt:
+        console.print("interrupted; finished shards are kept, rerun to resume")
+        sys.exit(130)

@@ -1,0 +1,214 @@
+"""Pipeline configs: TOML files in ``pipelines/``, validated per stage.
+
+A config has a ``[pipeline]`` section (``name``, ``seed``) and one section
+per stage, named after the stage (``[models]``, ``[grasps]``, ``[checks]``,
+``[scenes]``, ``[samples]``); a missing section means all defaults. Any value
+can be overridden with ``section.key=value`` (the value is read as TOML, so
+``3``, ``0.5``, ``true``, ``"text"`` and ``[1, 2]`` all work; a bare word is
+a string).
+
+Strings may name environment variables as ``${NAME}`` or ``${NAME:-default}``.
+Relative paths in location fields are resolved against the config file's
+folder.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from osgd.stage import StageParams
+
+
+class ConfigError(ValueError):
+    """A pipeline config that cannot be used; the message names file, key and value."""
+
+
+class PipelineSection(BaseModel):
+    """The ``[pipeline]`` section.
+
+    Attributes
+    ----------
+    name : str
+        Names the manifest (``<data-dir>/manifests/<name>.json``).
+    seed : int
+        Every random draw of every stage derives from it.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    name: str
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """A loaded, validated pipeline config.
+
+    Attributes
+    ----------
+    pipeline : PipelineSection
+    params : dict of str to StageParams
+        Every stage's parameters, by stage name.
+    path : Path or None
+        The file it came from.
+    """
+
+    pipeline: PipelineSection
+    params: dict[str, StageParams]
+    path: Path | None = None
+
+
+_VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
+
+
+def expand_variables(text: str) -> str:
+    """Replace ``${NAME}`` and ``${NAME:-default}`` from the environment.
+
+    Raises
+    ------
+    ConfigError
+        If a variable without a default is not set.
+    """
+
+    def replace(match: re.Match[str]) -> str:
+        name, default = match.group(1), match.group(2)
+        value = os.environ.get(name)
+        if value:
+            return value
+        if default is not None:
+            return default
+        raise ConfigError(f"environment variable {name} is not set and has no default (${{{name}:-...}})")
+
+    return _VARIABLE.sub(replace, text)
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """Split ``section.key=value`` into its parts, reading the value as TOML.
+
+    Raises
+    ------
+    ConfigError
+        If the text is not of that form.
+    """
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ConfigError(f"override {text!r} is not of the form section.key=value")
+    dotted, raw = text.split("=", 1)
+    section, key = dotted.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"value = {raw.strip()}")["value"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return section, key, value
+
+
+def _expand(value: Any) -> Any:
+    if isinstance(value, str):
+        return expand_variables(value)
+    if isinstance(value, list):
+        return [_expand(item) for item in value]
+    if isinstance(value, dict):
+        return {key: _expand(item) for key, item in value.items()}
+    return value
+
+
+def _describe_error(origin: str, section: str, error: ValidationError) -> str:
+    lines = []
+    for problem in error.errors():
+        key = ".".join(str(part) for part in problem["loc"])
+        got = problem.get("input")
+        lines.append(f"{origin}: [{section}] {key} = {got!r}: {problem['msg']}")
+    return "\n".join(lines)
+
+
+def build_config(
+    document: Mapping[str, Any],
+    stage_params: Mapping[str, type[StageParams]],
+    *,
+    origin: str = "<config>",
+    base_dir: Path | None = None,
+    overrides: Sequence[str] = (),
+) -> PipelineConfig:
+    """Validate a config document.
+
+    Parameters
+    ----------
+    document : mapping
+        The parsed TOML.
+    stage_params : mapping of stage name to its Params class
+    origin : str
+        Named in errors (the file path).
+    base_dir : Path, optional
+        Folder that relative location paths are resolved against.
+    overrides : sequence of str
+        ``section.key=value`` strings applied on top of the document.
+
+    Raises
+    ------
+    ConfigError
+    """
+    sections: dict[str, dict[str, Any]] = {name: dict(value) for name, value in document.items() if isinstance(value, dict)}
+    loose = [name for name, value in document.items() if not isinstance(value, dict)]
+    if loose:
+        raise ConfigError(f"{origin}: top-level key(s) {loose} must sit inside a [section]")
+    for override in overrides:
+        section, key, value = parse_override(override)
+        sections.setdefault(section, {})[key] = value
+    allowed = {"pipeline", *stage_params}
+    unknown = sorted(set(sections) - allowed)
+    if unknown:
+        raise ConfigError(f"{origin}: unknown section(s) {unknown}; allowed: {sorted(allowed)}")
+    sections = {name: _expand(values) for name, values in sections.items()}
+
+    pipeline_values = sections.get("pipeline", {})
+    pipeline_values.setdefault("name", Path(origin).stem if origin != "<config>" else "pipeline")
+    try:
+        pipeline = PipelineSection(**pipeline_values)
+    except ValidationError as error:
+        raise ConfigError(_describe_error(origin, "pipeline", error)) from error
+
+    params: dict[str, StageParams] = {}
+    for name, params_class in stage_params.items():
+        values = dict(sections.get(name, {}))
+        for field_name, info in params_class.model_fields.items():
+            extra = info.json_schema_extra
+            is_location = isinstance(extra, dict) and extra.get("location")
+            if is_location and base_dir is not None and isinstance(values.get(field_name), str):
+                raw = values[field_name]
+                if raw and not Path(raw).is_absolute():
+                    values[field_name] = str((base_dir / raw).resolve())
+        try:
+            params[name] = params_class(**values)
+        except ValidationError as error:
+            raise ConfigError(_describe_error(origin, name, error)) from error
+    return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None)
+
+
+def load_config(
+    path: str | os.PathLike[str],
+    stage_params: Mapping[str, type[StageParams]],
+    overrides: Sequence[str] = (),
+) -> PipelineConfig:
+    """Read and validate a pipeline TOML file.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, is not valid TOML, or holds a bad value.
+    """
+    path = Path(path)
+    try:
+        document = tomllib.loads(path.read_text())
+    except FileNotFoundError as error:
+        raise ConfigError(f"{path}: no such pipeline config") from error
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from error
+    return build_config(
+        document, stage_params, origin=str(path), base_dir=path.resolve().parent, overrides=overrides
+    )

@@ -1,0 +1,317 @@
+"""The stage framework: plan work items, build missing shards, record them.
+
+A stage turns the shards of its input tables into shards of its output table.
+It defines:
+
+- ``name``, ``table`` (the output table), ``version`` (bump it whenever the
+  output for the same inputs changes) and ``inputs`` (the tables it reads);
+- ``Params``: a pydantic model, the stage's section of the pipeline config;
+- :meth:`Stage.plan`: the work items, from the parameters and the planned
+  shards of the input tables. Planning reads no shard content, so the keys of
+  a whole pipeline are known before anything is built;
+- :meth:`Stage.build`: the rows of one item, computed from the item's payload
+  and the input shards it names. It reads nothing else, so everything it
+  depends on is in the shard key.
+
+:func:`run_stage` builds the items whose shards are missing or corrupt, on any
+executor, and returns a :class:`StageReport`.
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import pyarrow as pa
+from pydantic import BaseModel, ConfigDict
+
+from osgd.executor import Executor, SerialExecutor, TaskFailure
+from osgd.store import ShardError, ShardRecord, ShardStore, shard_key
+
+log = logging.getLogger(__name__)
+
+
+class StageParams(BaseModel):
+    """Base of every stage's parameters: unknown keys are an error.
+
+    A field whose ``json_schema_extra`` holds ``{"location": True}`` names
+    where something is (a folder path), not what it is: it is left out of
+    shard keys and manifests, so moving a folder recomputes nothing and
+    manifests hold no absolute paths. The stage must then put the content
+    hash of whatever it reads from there into the item payload.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def key_dict(self) -> dict[str, Any]:
+        """The parameters as JSON-able values, location fields left out."""
+        dumped = self.model_dump(mode="json")
+        for name, info in type(self).model_fields.items():
+            extra = info.json_schema_extra
+            if isinstance(extra, dict) and extra.get("location"):
+                dumped.pop(name, None)
+        return dumped
+
+
+@dataclass(frozen=True)
+class WorkItem:
+    """One unit of work: it builds exactly one shard.
+
+    Attributes
+    ----------
+    item_id : str
+        Identity within the stage, e.g. ``"hammer_001"`` or ``"scenes_0003"``.
+    payload : dict
+        JSON-able; everything :meth:`Stage.build` reads besides input shards.
+    inputs : dict of str to tuple of str
+        Input table name to the keys of the shards the item reads.
+    """
+
+    item_id: str
+    payload: dict[str, Any]
+    inputs: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PlannedShard:
+    """A work item with its key: what a downstream stage plans against."""
+
+    item: WorkItem
+    key: str
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    """What :meth:`Stage.build` may return instead of a bare table.
+
+    Attributes
+    ----------
+    table : pyarrow.Table
+        The rows, in the schema of the stage's table.
+    notes : list of str
+        Warnings worth showing a person (a repaired mesh, a dropped pair).
+    """
+
+    table: pa.Table
+    notes: list[str] = field(default_factory=list)
+
+
+class Stage(abc.ABC):
+    """Base class of the pipeline's stages."""
+
+    name: ClassVar[str]
+    table: ClassVar[str]
+    version: ClassVar[int]
+    inputs: ClassVar[tuple[str, ...]] = ()
+    Params: ClassVar[type[StageParams]]
+    description: ClassVar[str] = ""
+    #: False for a stage whose command only says "not implemented yet".
+    implemented: ClassVar[bool] = True
+
+    @abc.abstractmethod
+    def plan(
+        self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
+    ) -> list[WorkItem]:
+        """The stage's work items.
+
+        Parameters
+        ----------
+        params : StageParams
+            This stage's validated parameters.
+        seed : int
+            The pipeline seed; items derive their own seeds from it.
+        upstream : mapping
+            For each table in ``inputs``, the planned shards of that table.
+        """
+
+    @abc.abstractmethod
+    def build(self, item: WorkItem, store: ShardStore) -> pa.Table | BuildResult:
+        """Compute the rows of one item. Runs in a worker process."""
+
+    def planned(
+        self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
+    ) -> list[PlannedShard]:
+        """:meth:`plan` with the key of each item."""
+        items = self.plan(params, seed, upstream)
+        seen: set[str] = set()
+        shards = []
+        for item in items:
+            if item.item_id in seen:
+                raise ValueError(f"stage {self.name!r} planned item {item.item_id!r} twice")
+            seen.add(item.item_id)
+            input_keys = [key for keys in item.inputs.values() for key in keys]
+            shards.append(PlannedShard(item, shard_key(self.name, self.version, item.item_id, item.payload, input_keys)))
+        return shards
+
+
+@dataclass
+class ItemFailure:
+    """A work item whose build raised."""
+
+    item_id: str
+    key: str
+    error: str
+    traceback: str
+
+
+@dataclass
+class StageReport:
+    """The outcome of :func:`run_stage`.
+
+    Attributes
+    ----------
+    records : list of ShardRecord
+        Every finished shard of the plan, in plan order.
+    reused, built : int
+        How many shards were already done, and how many were built now.
+    rebuilt : list of str
+        Problems found with shards on disk that were then rebuilt.
+    failures : list of ItemFailure
+    notes : dict of str to list of str
+        Notes per item id, from builds now or earlier.
+    """
+
+    stage: str
+    records: list[ShardRecord] = field(default_factory=list)
+    reused: int = 0
+    built: int = 0
+    rebuilt: list[str] = field(default_factory=list)
+    failures: list[ItemFailure] = field(default_factory=list)
+    notes: dict[str, list[str]] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+
+@dataclass(frozen=True)
+class _BuildTask:
+    stage_ref: str  # "module:ClassName", importable in a fresh worker process
+    item: WorkItem
+    key: str
+    data_dir: str
+    force: bool
+
+
+def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str]]:
+    """Build and write one shard; runs in a worker. Module-level so it pickles."""
+    module_name, class_name = task.stage_ref.split(":")
+    stage = getattr(importlib.import_module(module_name), class_name)()
+    store = ShardStore(task.data_dir)
+    with store.lock(stage.table, task.key):
+        if not task.force and store.is_done(stage.table, task.key):
+            # Another process built it while this one waited for the lock.
+            return store.verify(stage.table, task.key), read_notes(store, stage.table, task.key)
+        result = stage.build(task.item, store)
+        if isinstance(result, pa.Table):
+            result = BuildResult(result)
+        record = store.write(stage.table, task.key, task.item.item_id, result.table)
+        if result.notes:
+            write_notes(store, stage.table, task.key, result.notes)
+        return record, list(result.notes)
+
+
+def _notes_path(store: ShardStore, table: str, key: str) -> Path:
+    return store.root / table / f"{key}.notes.json"
+
+
+def write_notes(store: ShardStore, table: str, key: str, notes: list[str]) -> None:
+    """Keep a shard's build notes beside it, so a resumed run reports them too."""
+    import json  # noqa: PLC0415
+
+    from osgd.store import atomic_write_bytes  # noqa: PLC0415
+
+    atomic_write_bytes(_notes_path(store, table, key), json.dumps(notes, indent=1).encode())
+
+
+def read_notes(store: ShardStore, table: str, key: str) -> list[str]:
+    """The build notes kept beside a shard (empty when none)."""
+    import json  # noqa: PLC0415
+
+    try:
+        return list(json.loads(_notes_path(store, table, key).read_text()))
+    except (FileNotFoundError, ValueError):
+        return []
+
+
+def run_stage(
+    stage: Stage,
+    shards: Sequence[PlannedShard],
+    store: ShardStore,
+    executor: Executor | None = None,
+    *,
+    force: bool = False,
+    manifest_shards: Mapping[str, str] | None = None,
+    on_item: Callable[[str, str], None] | None = None,
+) -> StageReport:
+    """Build every planned shard that is not already done.
+
+    Parameters
+    ----------
+    stage : Stage
+    shards : sequence of PlannedShard
+        From :meth:`Stage.planned`.
+    store : ShardStore
+    executor : Executor, optional
+        Serial when omitted.
+    force : bool
+        Rebuild every shard, done or not.
+    manifest_shards : mapping of key to sha256, optional
+        Checksums a manifest recorded; a shard that disagrees is rebuilt.
+    on_item : callable(item_id, status), optional
+        Called once per item with ``"reused"``, ``"built"`` or ``"failed"``.
+
+    Returns
+    -------
+    StageReport
+    """
+    executor = executor or SerialExecutor()
+    manifest_shards = manifest_shards or {}
+    report = StageReport(stage.name)
+    done: dict[str, ShardRecord] = {}
+    to_build: list[PlannedShard] = []
+    for shard in shards:
+        if force:
+            to_build.append(shard)
+            continue
+        path = store.shard_path(stage.table, shard.key)
+        try:
+            done[shard.key] = store.verify(stage.table, shard.key, manifest_shards.get(shard.key))
+        except ShardError as error:
+            if path.exists():
+                log.warning("%s; rebuilding", error)
+                report.rebuilt.append(str(error))
+            to_build.append(shard)
+            continue
+        report.reused += 1
+        notes = read_notes(store, stage.table, shard.key)
+        if notes:
+            report.notes[shard.item.item_id] = notes
+        if on_item:
+            on_item(shard.item.item_id, "reused")
+
+    stage_ref = f"{type(stage).__module__}:{type(stage).__qualname__}"
+    tasks = [_BuildTask(stage_ref, shard.item, shard.key, str(store.root), force) for shard in to_build]
+    for index, outcome in executor.map_unordered(_build_task, tasks):
+        shard = to_build[index]
+        if isinstance(outcome, TaskFailure):
+            log.error("stage %s, item %s failed: %s\n%s", stage.name, shard.item.item_id, outcome.error, outcome.traceback)
+            report.failures.append(ItemFailure(shard.item.item_id, shard.key, outcome.error, outcome.traceback))
+            if on_item:
+                on_item(shard.item.item_id, "failed")
+            continue
+        record, notes = outcome
+        done[shard.key] = record
+        report.built += 1
+        if notes:
+            report.notes[shard.item.item_id] = notes
+        if on_item:
+            on_item(shard.item.item_id, "built")
+
+    report.records = [done[shard.key] for shard in shards if shard.key in done]
+    return report

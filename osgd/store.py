@@ -1,0 +1,325 @@
+"""The content-addressed shard store.
+
+A shard is one Parquet file holding the rows one work item of a stage
+produced. It lives at ``<data-dir>/<table>/<key>.parquet`` where ``key`` is
+:func:`shard_key`: a sha256 over the stage name, the stage version, the work
+item's identity and payload (the canonical JSON of every parameter the item
+reads, seed included) and the sorted keys of the shards it reads. The same
+inputs, parameters and code version therefore always map to the same file.
+
+Beside each shard, ``<key>.sha256`` records the sha256 of the shard's bytes
+and its row count. A shard counts as done only when both files exist and the
+bytes hash to the recorded value; anything else is rebuilt, never consumed.
+
+Writes are atomic: bytes go to a temporary file in the same folder, are
+fsynced, then ``os.replace``-d onto the final name, so no partial file ever
+carries a final name. A per-shard ``fcntl`` lock keeps two processes on the
+same data dir from building the same shard twice; the atomic replace keeps
+them from corrupting it even without the lock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import io
+import json
+import os
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from osgd.schemas import SCHEMA_VERSION, TABLES
+
+#: Parquet writer settings; fixed so identical tables give identical bytes.
+_PARQUET_OPTIONS: dict[str, Any] = {
+    "compression": "zstd",
+    "compression_level": 3,
+    "use_dictionary": True,
+    "write_statistics": True,
+    "version": "2.6",
+}
+
+
+def canonical_json(value: Any) -> str:
+    """JSON with sorted keys and no whitespace: equal values give equal text.
+
+    Floats are written by Python's shortest round-trip repr, so a parameter
+    read from TOML and one set in code hash the same.
+    """
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
+def shard_key(
+    stage: str,
+    version: int,
+    item_id: str,
+    payload: Mapping[str, Any],
+    input_keys: Sequence[str],
+) -> str:
+    """The content hash naming a shard.
+
+    Parameters
+    ----------
+    stage : str
+        Stage name.
+    version : int
+        The stage's code version; bump it when the stage's output changes.
+    item_id : str
+        Identity of the work item within the stage (e.g. a model name).
+    payload : mapping
+        Every parameter the item's build reads, JSON-serialisable.
+    input_keys : sequence of str
+        Keys of the shards the item reads; their order does not matter.
+
+    Returns
+    -------
+    str
+        64 hex characters.
+    """
+    document = {
+        "stage": stage,
+        "version": int(version),
+        "item": item_id,
+        "payload": payload,
+        "inputs": sorted(input_keys),
+    }
+    return hashlib.sha256(canonical_json(document).encode("utf-8")).hexdigest()
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of a file's bytes, hex."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that ``path`` is either absent, the old
+    file, or the complete new file, whatever happens meanwhile."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            stream.write(data)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+    # Make the rename itself durable.
+    directory = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def table_to_parquet_bytes(table: pa.Table, table_name: str, key: str) -> bytes:
+    """Serialise ``table`` with the osgd metadata; deterministic bytes.
+
+    Raises
+    ------
+    ValueError
+        If the table does not match the schema of ``table_name``.
+    """
+    schema = TABLES[table_name]
+    if not table.schema.equals(schema, check_metadata=False):
+        try:
+            table = table.select(schema.names).cast(schema)
+        except (KeyError, pa.ArrowInvalid, pa.ArrowNotImplementedError, ValueError) as error:
+            raise ValueError(
+                f"rows for table {table_name!r} do not match its schema: {error}\n"
+                f"got: {table.schema}\nwant: {schema}"
+            ) from error
+    metadata = dict(schema.metadata or {})
+    metadata.update(
+        {
+            b"osgd.schema_version": str(SCHEMA_VERSION).encode(),
+            b"osgd.table": table_name.encode(),
+            b"osgd.key": key.encode(),
+        }
+    )
+    table = table.replace_schema_metadata(metadata)
+    buffer = io.BytesIO()
+    pq.write_table(table, buffer, **_PARQUET_OPTIONS)
+    return buffer.getvalue()
+
+
+@dataclass(frozen=True)
+class ShardRecord:
+    """What the store knows of one finished shard.
+
+    Attributes
+    ----------
+    table : str
+    key : str
+    item_id : str
+    rows : int
+    sha256 : str
+        sha256 of the Parquet file's bytes.
+    """
+
+    table: str
+    key: str
+    item_id: str
+    rows: int
+    sha256: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"item": self.item_id, "key": self.key, "rows": self.rows, "sha256": self.sha256}
+
+
+class ShardError(RuntimeError):
+    """A shard is missing, unreadable or fails its checksum."""
+
+
+class ShardStore:
+    """Shards of every table under one data dir.
+
+    Parameters
+    ----------
+    root : path
+        The data dir; created when first written.
+    """
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        self.root = Path(root)
+
+    # -- paths -------------------------------------------------------------
+    def shard_path(self, table: str, key: str) -> Path:
+        """``<root>/<table>/<key>.parquet``."""
+        return self.root / table / f"{key}.parquet"
+
+    def checksum_path(self, table: str, key: str) -> Path:
+        """``<root>/<table>/<key>.sha256``: the recorded checksum and row count."""
+        return self.root / table / f"{key}.sha256"
+
+    def manifest_path(self, pipeline: str) -> Path:
+        """``<root>/manifests/<pipeline>.json``."""
+        return self.root / "manifests" / f"{pipeline}.json"
+
+    # -- writing -----------------------------------------------------------
+    def write(self, table_name: str, key: str, item_id: str, table: pa.Table) -> ShardRecord:
+        """Write one shard atomically and record its checksum.
+
+        The Parquet file is replaced first and its checksum second, so a
+        crash between the two leaves a shard without a checksum, which
+        :meth:`verify` treats as missing.
+        """
+        data = table_to_parquet_bytes(table, table_name, key)
+        digest = hashlib.sha256(data).hexdigest()
+        atomic_write_bytes(self.shard_path(table_name, key), data)
+        record = {"item": item_id, "rows": table.num_rows, "sha256": digest}
+        atomic_write_bytes(self.checksum_path(table_name, key), (canonical_json(record) + "\n").encode())
+        return ShardRecord(table_name, key, item_id, table.num_rows, digest)
+
+    @contextlib.contextmanager
+    def lock(self, table: str, key: str) -> Iterator[None]:
+        """Hold an exclusive lock on one shard for as long as the block runs."""
+        lock_dir = self.root / table / ".locks"
+        lock_dir.mkdir(parents=True, exist_ok=True)
+        with open(lock_dir / f"{key}.lock", "a+") as handle:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+
+    # -- reading and verifying ---------------------------------------------
+    def verify(self, table: str, key: str, expected_sha256: str | None = None) -> ShardRecord:
+        """Check that a shard is complete and intact.
+
+        Parameters
+        ----------
+        expected_sha256 : str, optional
+            The checksum a manifest recorded; when given it must agree too.
+
+        Raises
+        ------
+        ShardError
+            Naming the file and what is wrong with it.
+        """
+        path = self.shard_path(table, key)
+        checksum_path = self.checksum_path(table, key)
+        if not path.exists():
+            raise ShardError(f"{path}: missing")
+        if not checksum_path.exists():
+            raise ShardError(f"{path}: no checksum file (the write was interrupted)")
+        try:
+            record = json.loads(checksum_path.read_text())
+            recorded, rows, item_id = str(record["sha256"]), int(record["rows"]), str(record["item"])
+        except (ValueError, KeyError, TypeError) as error:
+            raise ShardError(f"{checksum_path}: unreadable checksum file ({error})") from error
+        actual = file_sha256(path)
+        if actual != recorded:
+            raise ShardError(f"{path}: checksum {actual[:12]} disagrees with recorded {recorded[:12]}")
+        if expected_sha256 is not None and actual != expected_sha256:
+            raise ShardError(f"{path}: checksum {actual[:12]} disagrees with the manifest's {expected_sha256[:12]}")
+        return ShardRecord(table, key, item_id, rows, actual)
+
+    def is_done(self, table: str, key: str, expected_sha256: str | None = None) -> bool:
+        """Whether :meth:`verify` passes."""
+        try:
+            self.verify(table, key, expected_sha256)
+        except ShardError:
+            return False
+        return True
+
+    def read(self, table: str, key: str, columns: Sequence[str] | None = None) -> pa.Table:
+        """Read one shard (after verifying it).
+
+        Raises
+        ------
+        ShardError
+            If the shard is missing, incomplete or corrupt.
+        """
+        self.verify(table, key)
+        path = self.shard_path(table, key)
+        try:
+            return pq.read_table(path, columns=list(columns) if columns else None)
+        except (OSError, pa.ArrowException) as error:
+            raise ShardError(f"{path}: unreadable Parquet ({error})") from error
+
+    def read_many(self, table: str, keys: Sequence[str], columns: Sequence[str] | None = None) -> pa.Table:
+        """Concatenate several shards of one table, in the given order."""
+        parts = [self.read(table, key, columns) for key in keys]
+        if not parts:
+            schema = TABLES[table]
+            if columns:
+                schema = pa.schema([schema.field(name) for name in columns])
+            return schema.empty_table()
+        return pa.concat_tables(parts)
+
+    def keys_on_disk(self, table: str) -> list[str]:
+        """Keys of every shard file present for ``table``, sorted."""
+        folder = self.root / table
+        if not folder.is_dir():
+            return []
+        return sorted(path.stem for path in folder.glob("*.parquet"))
+
+    # -- manifests ---------------------------------------------------------
+    def read_manifest(self, pipeline: str) -> dict[str, Any] | None:
+        """The pipeline's manifest, or None when there is none or it is unreadable."""
+        path = self.manifest_path(pipeline)
+        try:
+            return json.loads(path.read_text())
+        except (FileNotFoundError, ValueError):
+            return None
+
+    def write_manifest(self, pipeline: str, manifest: Mapping[str, Any]) -> Path:
+        """Write a manifest atomically; the text is canonical and stable."""
+        path = self.manifest_path(pipeline)
+        text = json.dumps(manifest, sort_keys=True, indent=1, ensure_ascii=True) + "\n"
+        atomic_write_bytes(path, text.encode("utf-8"))
+        return path

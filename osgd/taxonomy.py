@@ -1,0 +1,128 @@
+"""The one definition of object categories, task labels and object parts.
+
+Everything that names a category, a task or a part imports it from here:
+the annotate stage, the render stage, the Parquet schemas, the training
+package and the figures.
+
+The task labels and their order are those of Table I of the paper (Yang et
+al., "Task-oriented Grasping in Object Stacking Scenes with CRF-based
+Semantic Model", IROS 2019); the order matters because the network's 12 task
+logits and the CRF's 12 x 12 compatibility matrices are indexed by it.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+#: The 12 task labels in the order of Table I (11 tasks plus "no task").
+TASKS: Final[tuple[str, ...]] = (
+    "no task",
+    "cut",
+    "screw",
+    "ladle",
+    "fork",
+    "wrench",
+    "hammer",
+    "write",
+    "brush",
+    "shovel",
+    "pinch",
+    "hand over",
+)
+
+#: Task index by name, for encoding labels as integers.
+TASK_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(TASKS)}
+
+#: The 10 object categories, in the order of Table I's representative objects.
+CATEGORIES: Final[tuple[str, ...]] = (
+    "knife",
+    "screwdriver",
+    "spoon",
+    "fork",
+    "wrench",
+    "hammer",
+    "pen",
+    "toothbrush",
+    "spatula",
+    "pliers",
+)
+
+#: Category index by name; the detector's class label is this index + 1
+#: (0 is the background class).
+CATEGORY_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(CATEGORIES)}
+
+#: The task each category is the representative object of (Table I).
+CATEGORY_TASK: Final[dict[str, str]] = {
+    "knife": "cut",
+    "screwdriver": "screw",
+    "spoon": "ladle",
+    "fork": "fork",
+    "wrench": "wrench",
+    "hammer": "hammer",
+    "pen": "write",
+    "toothbrush": "brush",
+    "spatula": "shovel",
+    "pliers": "pinch",
+}
+
+#: The grasp requirement of each task, verbatim from Table I.
+TASK_REQUIREMENT: Final[dict[str, str]] = {
+    "no task": "cannot finish any task",
+    "cut": "avoid the blade",
+    "screw": "avoid the shaft",
+    "ladle": "avoid the bowl",
+    "fork": "avoid the tines",
+    "wrench": "away from the jaws",
+    "hammer": "away from the heavier end",
+    "write": "not close to the tip",
+    "brush": "avoid the parts with bristles",
+    "shovel": "avoid the blade",
+    "pinch": "avoid the jaws",
+    "hand over": "leave the handle clear",
+}
+
+#: The file name stem of each task in the original OSGD annotation layout
+#: (``<name>/annotations/<stem>.npy``).
+TASK_FILE_STEM: Final[dict[str, str]] = {task: task.replace(" ", "_") for task in TASKS}
+
+#: Object part names used for per-face part labels. Index -1 means unknown.
+PARTS: Final[tuple[str, ...]] = (
+    "handle",
+    "blade",
+    "shaft",
+    "tip",
+    "bowl",
+    "tines",
+    "head",
+    "neck",
+    "jaws",
+    "bristles",
+)
+
+#: Part index by name.
+PART_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(PARTS)}
+
+#: The label of a face whose part is not known.
+UNKNOWN_PART: Final[int] = -1
+
+
+def task_from_file_stem(stem: str) -> str:
+    """Return the task named by an OSGD annotation file stem.
+
+    Parameters
+    ----------
+    stem : str
+        File name without extension, e.g. ``"hand_over"``.
+
+    Raises
+    ------
+    ValueError
+        If the stem names no task of Table I.
+    """
+    for task, task_stem in TASK_FILE_STEM.items():
+        if task_stem == stem:
+            return task
+    raise ValueError(
+        f"annotation file stem {stem!r} names no task; expected one of "
+        f"{sorted(TASK_FILE_STEM.values())}"
+    )
