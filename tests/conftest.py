@@ -1,0 +1,20 @@
+"""Shared pytest fixtures."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from helpers import OSGD_MODELS  # noqa: E402
+
+
+@pytest.fixture
+def osgd_models_dir() -> Path:
+    """The paper authors' models in ../shared/osgd-models; skips where absent."""
+    if not OSGD_MODELS.is_dir():
+        pytest.skip(f"the shared OSGD models are not at {OSGD_MODELS} (clone the original repository there)")
+    return OSGD_MODELS

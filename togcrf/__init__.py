@@ -1,0 +1,7 @@
+"""togcrf: the TOG and TOG-CRFs task-oriented grasp detectors, trained on osgd shards.
+
+A lean package: it reads ``samples`` shards and needs torch, torchvision,
+pyarrow, numpy and OpenCV, never the generator's physics or mesh libraries.
+"""
+
+__version__ = "0.1.0"

@@ -1,0 +1,51 @@
+"""The ``togcrf`` command line: train, evaluate, predict, figures.
+
+Each command lives in the module of its topic, which registers it here
+through a ``register(app)`` function, so this file stays a table of contents.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+
+import typer
+
+app = typer.Typer(
+    help="Train and evaluate the TOG / TOG-CRFs task-oriented grasp detectors on osgd samples.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+#: Modules that add commands, in the order they appear in --help.
+COMMAND_MODULES = (
+    "togcrf.train",
+    "togcrf.evaluate",
+    "togcrf.predict",
+    "togcrf.figures",
+    "togcrf.reproduce",
+)
+
+
+@app.callback()
+def main(
+    log_level: str = typer.Option("warning", help="debug, info, warning or error."),
+) -> None:
+    logging.basicConfig(level=getattr(logging, log_level.upper(), logging.WARNING),
+                        format="%(levelname)s %(name)s: %(message)s")
+
+
+for _module_name in COMMAND_MODULES:
+    try:
+        _module = importlib.import_module(_module_name)
+    except ModuleNotFoundError as _error:
+        if _error.name != _module_name:
+            raise
+        continue
+    _module.register(app)
+
+
+def run() -> None:
+    """Console-script entry point."""
+    app()
