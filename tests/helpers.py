@@ -123,3 +123,92 @@ def fixture_models() -> list[dict]:
         model_row("test/screwdriver", "screwdriver", screwdriver_parts()),
         model_row("test/block", "knife", block_parts()),
     ]
+
+
+def synthetic_sample_row(
+    rng: np.random.Generator, index: int, height: int = 128, width: int = 128, split: str = "train"
+) -> dict:
+    """A learnable stand-in for a rendered sample, as a real ``samples`` row.
+
+    Two to four bars lie on a table at 0.8 m; each bar's height above the
+    table encodes its category, and grasps lie across it: the category's task
+    on the half towards the bar's start ("handle"), "hand over" on the other
+    half. Used by togcrf tests before (and independently of) the renderer.
+    """
+    from osgd.samples.encoding import encode_depth, encode_mask  # noqa: PLC0415
+    from osgd.taxonomy import CATEGORIES, CATEGORY_TASK  # noqa: PLC0415
+
+    depth = np.full((height, width), 0.8, dtype=np.float64)
+    mask = np.zeros((height, width), dtype=np.uint8)
+    objects, grasps = [], []
+    count = int(rng.integers(2, 5))
+    for object_index in range(count):
+        category_number = int(rng.integers(0, 3))
+        category = CATEGORIES[category_number]
+        length = rng.uniform(0.45, 0.7) * min(height, width)
+        thickness = rng.uniform(0.08, 0.12) * min(height, width)
+        angle = rng.uniform(-np.pi / 2, np.pi / 2)
+        centre = rng.uniform(0.3, 0.7, size=2) * [width, height]
+        direction = np.array([np.cos(angle), np.sin(angle)])
+        normal = np.array([-direction[1], direction[0]])
+        ys, xs = np.mgrid[0:height, 0:width]
+        offset = np.stack([xs - centre[0], ys - centre[1]], axis=-1)
+        along = offset @ direction
+        across = offset @ normal
+        inside = (np.abs(along) <= length / 2) & (np.abs(across) <= thickness / 2)
+        depth[inside] = 0.8 - 0.02 * (category_number + 1)
+        mask[inside] = object_index + 1
+        for step in np.linspace(-0.4, 0.4, 7):
+            point = centre + step * length * direction
+            closing_angle = (angle + np.pi / 2 + np.pi / 2) % np.pi - np.pi / 2
+            task = CATEGORY_TASK[category] if step < 0 else "hand over"
+            grasps.append({
+                "object_index": object_index,
+                "grasp_id": len(grasps),
+                "task": task,
+                "rectangle": [float(point[0]), float(point[1]), float(thickness * 1.6), float(thickness * 0.6),
+                              float(closing_angle)],
+                "position": [0.0, 0.0, 0.8],
+                "quaternion": [0.0, 0.0, 0.0, 1.0],
+                "width": 0.04,
+            })
+        objects.append({"object_index": object_index, "model_id": f"synthetic{category_number}",
+                        "category": category, "box": [0.0, 0.0, 0.0, 0.0], "visible_fraction": 1.0})
+    for obj in objects:
+        ys, xs = np.nonzero(mask == obj["object_index"] + 1)
+        obj["box"] = [float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max())] if len(xs) else [0.0] * 4
+        obj["visible_fraction"] = 1.0 if len(xs) else 0.0
+    objects = [obj for obj in objects if obj["visible_fraction"] > 0]
+    kept = {obj["object_index"] for obj in objects}
+    grasps = [grasp for grasp in grasps if grasp["object_index"] in kept]
+    noisy = depth + rng.normal(0.0, 0.001, size=depth.shape)
+    return {
+        "sample_id": f"synthetic_{index:06d}", "scene_id": f"synthetic_{index:06d}", "split": split,
+        "height": height, "width": width,
+        "depth": encode_depth(noisy), "depth_clean": encode_depth(depth), "mask": encode_mask(mask),
+        "intrinsics": [365.5, 365.5, width / 2 - 0.5, height / 2 - 0.5],
+        "camera_position": [0.0, 0.0, 0.8], "camera_quaternion": [1.0, 0.0, 0.0, 0.0],
+        "renderer": "synthetic", "objects": objects, "grasps": grasps,
+    }
+
+
+def write_synthetic_samples(store: ShardStore, count: int, seed: int = 0, test_every: int = 5,
+                            height: int = 128, width: int = 128) -> list[str]:
+    """Write ``count`` synthetic samples in shards of 8; returns the keys.
+
+    Every ``test_every``-th sample is in the test split. Also writes a
+    ``synthetic`` pipeline manifest listing the shards, as the pipeline does.
+    """
+    from osgd.schemas import SAMPLES, SCHEMA_VERSION  # noqa: PLC0415
+
+    rng = np.random.default_rng(seed)
+    rows = [synthetic_sample_row(rng, index, height, width, "test" if index % test_every == 0 else "train")
+            for index in range(count)]
+    records = []
+    for start in range(0, count, 8):
+        key = hashlib.sha256(f"synthetic-{seed}-{start}-{count}".encode()).hexdigest()
+        records.append(store.write("samples", key, f"synthetic_{start}",
+                                   pa.Table.from_pylist(rows[start:start + 8], schema=SAMPLES)))
+    store.write_manifest("synthetic", {"pipeline": "synthetic", "schema_version": SCHEMA_VERSION, "stages": {
+        "samples": {"shards": [record.as_dict() for record in records]}}})
+    return [record.key for record in records]

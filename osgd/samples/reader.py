@@ -1,0 +1,191 @@
+"""Read training samples as numpy arrays.
+
+Example
+-------
+>>> from osgd.samples.reader import iter_samples
+>>> for sample in iter_samples("data", pipeline="default", split="train"):  # doctest: +SKIP
+...     depth = sample.depth                    # (H, W) float32, metres, 0 = no reading
+...     boxes = sample.boxes                    # (N, 4) float32, x1 y1 x2 y2 pixels
+...     rectangles = sample.grasp_rectangles    # (G, 5) float32, x y h w theta
+...     owners = sample.grasp_objects           # (G,) int64, row of `boxes` each grasp belongs to
+
+Streaming: shards are read one at a time and rows decoded lazily, so a data
+set never has to fit in memory. This module needs only numpy, pyarrow and
+OpenCV.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from osgd.samples.encoding import decode_depth, decode_mask
+from osgd.store import ShardError, ShardStore
+from osgd.taxonomy import CATEGORY_INDEX, TASK_INDEX
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One rendered depth image and its annotations.
+
+    Attributes
+    ----------
+    sample_id, scene_id, split : str
+    depth : (H, W) float32
+        Noisy depth, metres, 0 = no reading.
+    depth_clean : (H, W) float32
+        Noise-free depth, metres.
+    mask : (H, W) uint8
+        0 background, ``object_index + 1`` on each object's visible pixels.
+    intrinsics : (4,) float64
+        ``fx, fy, cx, cy`` in pixels.
+    camera_position : (3,) float64
+        Camera origin in the world frame, metres.
+    camera_quaternion : (4,) float64
+        Camera (OpenCV) frame in the world frame, ``(x, y, z, w)``.
+    object_indices : (N,) int64
+        Index of each annotated object in its scene.
+    categories : tuple of str
+    category_labels : (N,) int64
+        ``taxonomy.CATEGORY_INDEX``, no background offset.
+    boxes : (N, 4) float32
+        ``x1, y1, x2, y2`` pixels, tight around the visible pixels.
+    visible_fraction : (N,) float32
+    grasp_rectangles : (G, 5) float32
+        ``x, y, h, w, theta``: centre (px), opening (px), finger width (px),
+        angle of the closing direction to the image x axis (rad, [-pi/2, pi/2)).
+    grasp_objects : (G,) int64
+        Row of ``boxes`` each grasp belongs to.
+    grasp_tasks : (G,) int64
+        ``taxonomy.TASK_INDEX``.
+    grasp_positions : (G, 3) float64
+        3-D grasp centres in the camera frame, metres.
+    grasp_quaternions : (G, 4) float64
+        Gripper frames in the camera frame.
+    """
+
+    sample_id: str
+    scene_id: str
+    split: str
+    depth: np.ndarray
+    depth_clean: np.ndarray
+    mask: np.ndarray
+    intrinsics: np.ndarray
+    camera_position: np.ndarray
+    camera_quaternion: np.ndarray
+    object_indices: np.ndarray
+    categories: tuple[str, ...]
+    category_labels: np.ndarray
+    boxes: np.ndarray
+    visible_fraction: np.ndarray
+    grasp_rectangles: np.ndarray
+    grasp_objects: np.ndarray
+    grasp_tasks: np.ndarray
+    grasp_positions: np.ndarray
+    grasp_quaternions: np.ndarray
+
+
+def decode_row(row: dict[str, Any]) -> Sample:
+    """Decode one row of the ``samples`` table (as from ``Table.to_pylist()``).
+
+    Raises
+    ------
+    ValueError
+        If a grasp names an object that is not among the sample's objects.
+    """
+    objects = row["objects"]
+    object_indices = np.array([obj["object_index"] for obj in objects], dtype=np.int64)
+    row_of_object = {int(index): position for position, index in enumerate(object_indices)}
+    grasps = row["grasps"]
+    try:
+        grasp_objects = np.array([row_of_object[int(grasp["object_index"])] for grasp in grasps], dtype=np.int64)
+    except KeyError as error:
+        raise ValueError(f"sample {row['sample_id']}: a grasp names object {error} that has no box") from error
+    return Sample(
+        sample_id=row["sample_id"],
+        scene_id=row["scene_id"],
+        split=row["split"],
+        depth=decode_depth(row["depth"]),
+        depth_clean=decode_depth(row["depth_clean"]),
+        mask=decode_mask(row["mask"]),
+        intrinsics=np.asarray(row["intrinsics"], dtype=np.float64),
+        camera_position=np.asarray(row["camera_position"], dtype=np.float64),
+        camera_quaternion=np.asarray(row["camera_quaternion"], dtype=np.float64),
+        object_indices=object_indices,
+        categories=tuple(obj["category"] for obj in objects),
+        category_labels=np.array([CATEGORY_INDEX[obj["category"]] for obj in objects], dtype=np.int64),
+        boxes=np.array([obj["box"] for obj in objects], dtype=np.float32).reshape(-1, 4),
+        visible_fraction=np.array([obj["visible_fraction"] for obj in objects], dtype=np.float32),
+        grasp_rectangles=np.array([grasp["rectangle"] for grasp in grasps], dtype=np.float32).reshape(-1, 5),
+        grasp_objects=grasp_objects,
+        grasp_tasks=np.array([TASK_INDEX[grasp["task"]] for grasp in grasps], dtype=np.int64),
+        grasp_positions=np.array([grasp["position"] for grasp in grasps], dtype=np.float64).reshape(-1, 3),
+        grasp_quaternions=np.array([grasp["quaternion"] for grasp in grasps], dtype=np.float64).reshape(-1, 4),
+    )
+
+
+def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Path]:
+    """The verified ``samples`` shards of a data dir.
+
+    Parameters
+    ----------
+    data_dir : path
+    pipeline : str, optional
+        Only the shards the manifest of this pipeline lists, in its order;
+        otherwise every verified shard in ``<data_dir>/samples/``, sorted.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no such manifest, or no samples at all.
+    """
+    store = ShardStore(data_dir)
+    if pipeline is not None:
+        manifest = store.read_manifest(pipeline)
+        if manifest is None:
+            raise FileNotFoundError(f"{store.manifest_path(pipeline)}: no manifest; build the pipeline first")
+        entries = manifest.get("stages", {}).get("samples", {}).get("shards", [])
+        keys = [entry["key"] for entry in entries]
+    else:
+        keys = store.keys_on_disk("samples")
+    paths = []
+    for key in keys:
+        try:
+            store.verify("samples", key)
+        except ShardError:
+            continue
+        paths.append(store.shard_path("samples", key))
+    if not paths:
+        raise FileNotFoundError(f"{Path(data_dir) / 'samples'}: no samples shards; run `osgd render` first")
+    return paths
+
+
+def iter_samples(
+    data_dir: str | Path,
+    pipeline: str | None = None,
+    split: str | None = None,
+    shards: Sequence[Path] | None = None,
+) -> Iterator[Sample]:
+    """Stream decoded samples, one shard in memory at a time.
+
+    Parameters
+    ----------
+    data_dir : path
+    pipeline : str, optional
+        See :func:`sample_shards`.
+    split : {"train", "test"}, optional
+        Only samples of this split.
+    shards : sequence of path, optional
+        Read these files instead of looking them up.
+    """
+    for path in shards if shards is not None else sample_shards(data_dir, pipeline):
+        parquet = pq.ParquetFile(path)
+        for batch in parquet.iter_batches(batch_size=16):
+            for row in batch.to_pylist():
+                if split is None or row["split"] == split:
+                    yield decode_row(row)
