@@ -1,0 +1,230 @@
+"""pybullet bodies from ``models`` rows: the one place objects enter physics.
+
+Used by the check stage (grasp trials) and the stack stage (dropping piles).
+
+Frames
+------
+A pybullet body has a link frame (here: the object's mesh frame) and an
+inertial frame (the centre of mass, along the principal axes of inertia).
+``getBasePositionAndOrientation`` and ``resetBasePositionAndOrientation``
+work on the *inertial* frame (REFERENCE section 8: 5 cm apart on a hammer),
+so this module converts at the boundary: callers only ever see mesh-frame
+poses, through :func:`get_mesh_pose` and :func:`set_mesh_pose`.
+
+Collision shape
+---------------
+The convex parts of the ``convex_parts`` column become one compound shape:
+they are written as one OBJ file with one ``o`` object per part, which
+pybullet loads as a compound of convex hulls. (A plain ``GEOM_MESH`` from
+vertices on a dynamic body would be the convex hull of the whole mesh, and
+``createCollisionShapeArray`` takes no vertex arrays.)
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pybullet
+
+_OBJ_FOLDER: Path | None = None
+
+
+def _obj_folder() -> Path:
+    """A per-process temporary folder for compound OBJ files, removed at exit."""
+    global _OBJ_FOLDER
+    if _OBJ_FOLDER is None:
+        _OBJ_FOLDER = Path(tempfile.mkdtemp(prefix="osgd-physics-"))
+        atexit.register(shutil.rmtree, _OBJ_FOLDER, ignore_errors=True)
+    return _OBJ_FOLDER
+
+
+def write_compound_obj(convex_parts: list[tuple[np.ndarray, np.ndarray]], path: Path) -> Path:
+    """Write convex parts as one OBJ file, one ``o`` object per part.
+
+    Parameters
+    ----------
+    convex_parts : list of (vertices (V, 3) float, faces (F, 3) int)
+        Object frame, metres.
+    path : Path
+    """
+    lines = []
+    offset = 1
+    for index, (vertices, faces) in enumerate(convex_parts):
+        lines.append(f"o part{index}")
+        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(vertices, dtype=np.float64))
+        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in np.asarray(faces, dtype=np.int64))
+        offset += len(vertices)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _cell_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.asarray(vertices, dtype=np.float64).reshape(-1, 3),
+        np.asarray(faces, dtype=np.int64).reshape(-1, 3),
+    )
+
+
+@dataclass(frozen=True)
+class ObjectBody:
+    """A model instantiated in a pybullet world.
+
+    Attributes
+    ----------
+    body_id : int
+    model_id : str
+    client : int
+        The physics client it lives in.
+    inertial_position : (3,) float64
+        Centre of mass in the mesh frame, metres.
+    inertial_quaternion : (4,) float64
+        Principal axes of inertia in the mesh frame, (x, y, z, w).
+    """
+
+    body_id: int
+    model_id: str
+    client: int
+    inertial_position: np.ndarray
+    inertial_quaternion: np.ndarray
+
+
+def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonalise an inertia tensor.
+
+    Parameters
+    ----------
+    inertia : (3, 3) float
+        About the centre of mass, in object axes, kg m^2.
+
+    Returns
+    -------
+    moments : (3,) float64
+        Principal moments, kg m^2.
+    quaternion : (4,) float64
+        Rotation from the principal axes to object axes, (x, y, z, w).
+    """
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415
+
+    symmetric = (np.asarray(inertia, dtype=np.float64) + np.asarray(inertia, dtype=np.float64).T) / 2
+    moments, axes = np.linalg.eigh(symmetric)
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return np.maximum(moments, 1e-9), Rotation.from_matrix(axes).as_quat()
+
+
+def create_object_body(
+    client: int,
+    model: Mapping[str, Any],
+    position: np.ndarray | None = None,
+    quaternion: np.ndarray | None = None,
+    *,
+    mass: float | None = None,
+) -> ObjectBody:
+    """Create a dynamic body for one row of the ``models`` table.
+
+    Parameters
+    ----------
+    client : int
+        pybullet physics client id.
+    model : mapping
+        A ``models`` row as a dict (``Table.to_pylist()``): ``model_id``,
+        ``convex_parts``, ``mass``, ``center_of_mass``, ``inertia``,
+        ``friction``.
+    position : (3,) float, optional
+        Mesh-frame origin in the world, metres (default: origin).
+    quaternion : (4,) float, optional
+        Mesh-frame orientation in the world, (x, y, z, w) (default: identity).
+    mass : float, optional
+        Override the model's mass, kg (0 makes the body static).
+
+    Returns
+    -------
+    ObjectBody
+    """
+    parts = [_cell_mesh(part["vertices"], part["faces"]) for part in model["convex_parts"]]
+    if not parts:
+        raise ValueError(f"model {model['model_id']}: no convex parts to collide with")
+    obj_path = _obj_folder() / f"{model['model_id']}.obj"
+    if not obj_path.exists():
+        write_compound_obj(parts, obj_path)
+    shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(obj_path), physicsClientId=client)
+    if shape < 0:
+        raise RuntimeError(f"model {model['model_id']}: pybullet could not create its collision shape")
+    moments, inertial_quaternion = principal_inertia(np.asarray(model["inertia"], dtype=np.float64).reshape(3, 3))
+    inertial_position = np.asarray(model["center_of_mass"], dtype=np.float64)
+    body_mass = float(model["mass"] if mass is None else mass)
+    body = pybullet.createMultiBody(
+        baseMass=body_mass,
+        baseCollisionShapeIndex=shape,
+        baseInertialFramePosition=inertial_position.tolist(),
+        baseInertialFrameOrientation=inertial_quaternion.tolist(),
+        physicsClientId=client,
+    )
+    if body_mass > 0:
+        pybullet.changeDynamics(body, -1, localInertiaDiagonal=moments.tolist(), physicsClientId=client)
+    lateral, rolling, spinning = (float(value) for value in model["friction"])
+    pybullet.changeDynamics(
+        body, -1, lateralFriction=lateral, rollingFriction=rolling, spinningFriction=spinning,
+        physicsClientId=client,
+    )
+    handle = ObjectBody(body, str(model["model_id"]), client, inertial_position, inertial_quaternion)
+    set_mesh_pose(
+        handle,
+        np.zeros(3) if position is None else position,
+        np.array([0.0, 0.0, 0.0, 1.0]) if quaternion is None else quaternion,
+    )
+    return handle
+
+
+def set_mesh_pose(body: ObjectBody, position: np.ndarray, quaternion: np.ndarray) -> None:
+    """Place a body so that its mesh frame has the given world pose (velocities kept)."""
+    com_position, com_quaternion = pybullet.multiplyTransforms(
+        list(map(float, position)), list(map(float, quaternion)),
+        body.inertial_position.tolist(), body.inertial_quaternion.tolist(),
+    )
+    pybullet.resetBasePositionAndOrientation(body.body_id, com_position, com_quaternion, physicsClientId=body.client)
+
+
+def get_mesh_pose(body: ObjectBody) -> tuple[np.ndarray, np.ndarray]:
+    """World pose of a body's mesh frame.
+
+    Returns
+    -------
+    position : (3,) float64
+    quaternion : (4,) float64
+        (x, y, z, w)
+    """
+    com_position, com_quaternion = pybullet.getBasePositionAndOrientation(body.body_id, physicsClientId=body.client)
+    inverse_position, inverse_quaternion = pybullet.invertTransform(
+        body.inertial_position.tolist(), body.inertial_quaternion.tolist()
+    )
+    position, quaternion = pybullet.multiplyTransforms(com_position, com_quaternion, inverse_position, inverse_quaternion)
+    return np.asarray(position, dtype=np.float64), np.asarray(quaternion, dtype=np.float64)
+
+
+@contextlib.contextmanager
+def physics_client(timestep: float = 1.0 / 240.0, gravity: float = -9.81) -> Iterator[int]:
+    """A headless (DIRECT) pybullet client, disconnected on exit.
+
+    Parameters
+    ----------
+    timestep : float
+        Seconds per simulation step (pybullet's default 1/240 s).
+    gravity : float
+        Along world z, m/s^2.
+    """
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        pybullet.setGravity(0.0, 0.0, gravity, physicsClientId=client)
+        pybullet.setTimeStep(timestep, physicsClientId=client)
+        yield client
+    finally:
+        pybullet.disconnect(client)
