@@ -1,0 +1,539 @@
+"""The metrics of the paper's Table II: mAP, mAP-G, Acc-T top-k and speed.
+
+Every metric is defined here once, on numpy arrays in a sample's pixel frame
+(the model's outputs divided by the input scale, see
+:func:`togcrf.evaluate.prediction_to_numpy`).
+
+Definitions (paper section V-B; REFERENCE.md sections 1 and 3)
+----------------------------------------------------------------
+Grasp rectangle
+    ``(x, y, h, w, theta)``: centre in pixels, ``h`` the gripper opening
+    along the closing direction, ``w`` the finger width across it, ``theta``
+    the angle of the closing direction to the image x axis in radians. A
+    rectangle and the same one turned by 180 degrees are the same grasp.
+Grasp match
+    A detected grasp matches a ground-truth grasp when the Jaccard index of
+    the two rotated rectangles is larger than 0.25 and their angle
+    difference, taken modulo 180 degrees, is smaller than 30 degrees (the
+    Cornell "rectangle metric", used by ROI-GD and by the paper).
+Detection matching (mAP)
+    Per image and category, detections are visited by decreasing score
+    (ties: the model's order); each claims the unclaimed ground-truth box of
+    its category with the highest IoU, if that IoU is larger than 0.5;
+    otherwise it is a false positive. This is the greedy COCO / ROI-GD rule,
+    which pycocotools also follows, so the two agree.
+Average precision
+    All-point interpolated (PASCAL VOC 2010 and later): the area under the
+    precision-recall curve after replacing each precision by the largest
+    precision at any higher recall. mAP is the mean over the categories
+    that have at least one ground-truth object in the evaluated images.
+mAP-G
+    As mAP, but a detection may only claim a ground-truth box whose object
+    also has a ground-truth grasp that the detection's top-1 stability grasp
+    matches (so a detection with a bad grasp is a false positive, and the
+    object stays available to a lower-scored detection).
+Acc-T top-k
+    Over the detections that are true positives of mAP, whose object has at
+    least one ground-truth grasp: the fraction whose k candidates of highest
+    stability all carry the right task label (arg-max of P(task | stable)).
+    The *right* label of a candidate is the task of the ground-truth grasp of
+    the matched object nearest to it (centre distance) among those it
+    matches by the grasp criterion; when it matches none, the task of the
+    nearest ground-truth grasp of that object (``unmatched_task="nearest"``,
+    the default: Acc-T measures task classification apart from grasp
+    quality, as the paper intends) or no label at all
+    (``unmatched_task="wrong"``: such a candidate counts as wrong). Ties in
+    distance (one rectangle annotated with several tasks) accept any of the
+    tied tasks. A detection with fewer than k candidates is judged on all
+    of them; one with none is a negative.
+Speed
+    Frames per second of the full model on one image at a time (batch 1),
+    after warm-up runs, on a stated device; see :func:`measure_speed`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import shapely
+
+from osgd.taxonomy import CATEGORIES, TASKS
+
+log = logging.getLogger(__name__)
+
+#: Box IoU above which a detection can be a true positive (paper V-B).
+BOX_IOU_THRESHOLD = 0.5
+#: Jaccard index of grasp rectangles above which grasps match (paper V-B).
+GRASP_JACCARD_THRESHOLD = 0.25
+#: Angle difference below which grasps match, radians (30 degrees, paper V-B).
+GRASP_ANGLE_TOLERANCE = np.deg2rad(30.0)
+#: The k of Acc-T top-k reported in Table II.
+TOP_K = (1, 5, 10)
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def rectangle_corners(rectangles: np.ndarray) -> np.ndarray:
+    """Corners of grasp rectangles.
+
+    Parameters
+    ----------
+    rectangles : (..., 5) array
+        ``x, y, h, w, theta`` (pixels, radians).
+
+    Returns
+    -------
+    (..., 4, 2) float64 array
+        Corners in pixels, in order around the rectangle.
+    """
+    rectangles = np.asarray(rectangles, dtype=np.float64)
+    centre = rectangles[..., None, 0:2]
+    half_opening = rectangles[..., 2, None, None] / 2
+    half_width = rectangles[..., 3, None, None] / 2
+    theta = rectangles[..., 4]
+    closing = np.stack([np.cos(theta), np.sin(theta)], axis=-1)[..., None, :]
+    across = np.stack([-np.sin(theta), np.cos(theta)], axis=-1)[..., None, :]
+    signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=np.float64)
+    return (centre + signs[:, 0:1] * half_opening * closing + signs[:, 1:2] * half_width * across)
+
+
+def _polygons(rectangles: np.ndarray) -> np.ndarray:
+    return shapely.polygons(rectangle_corners(rectangles).reshape(-1, 4, 2))
+
+
+def rectangle_jaccard(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Jaccard index (intersection over union) of every pair of rotated rectangles.
+
+    Parameters
+    ----------
+    first : (P, 5) array
+    second : (M, 5) array
+        Grasp rectangles ``x, y, h, w, theta``.
+
+    Returns
+    -------
+    (P, M) float64 array
+        Exact polygon intersection over union; 0 where a rectangle is empty.
+    """
+    first = np.asarray(first, dtype=np.float64).reshape(-1, 5)
+    second = np.asarray(second, dtype=np.float64).reshape(-1, 5)
+    if len(first) == 0 or len(second) == 0:
+        return np.zeros((len(first), len(second)))
+    polygons_first = _polygons(first)[:, None]
+    polygons_second = _polygons(second)[None, :]
+    intersection = shapely.area(shapely.intersection(polygons_first, polygons_second))
+    area_first = np.abs(first[:, 2] * first[:, 3])[:, None]
+    area_second = np.abs(second[:, 2] * second[:, 3])[None, :]
+    union = area_first + area_second - intersection
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, intersection / union, 0.0)
+
+
+def angle_difference(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Smallest difference of grasp angles, modulo 180 degrees.
+
+    Parameters
+    ----------
+    first, second : array-like, broadcastable
+        Angles in radians.
+
+    Returns
+    -------
+    float64 array in [0, pi/2]
+        Radians.
+    """
+    difference = np.abs(np.asarray(first, dtype=np.float64) - np.asarray(second, dtype=np.float64)) % np.pi
+    return np.minimum(difference, np.pi - difference)
+
+
+def grasp_match_matrix(detected: np.ndarray, ground_truth: np.ndarray) -> np.ndarray:
+    """Which detected grasps match which ground-truth grasps.
+
+    Parameters
+    ----------
+    detected : (P, 5) array
+    ground_truth : (M, 5) array
+
+    Returns
+    -------
+    (P, M) bool array
+        Jaccard > :data:`GRASP_JACCARD_THRESHOLD` and angle difference
+        (mod 180 degrees) < :data:`GRASP_ANGLE_TOLERANCE`.
+    """
+    detected = np.asarray(detected, dtype=np.float64).reshape(-1, 5)
+    ground_truth = np.asarray(ground_truth, dtype=np.float64).reshape(-1, 5)
+    angles_close = angle_difference(detected[:, None, 4], ground_truth[None, :, 4]) < GRASP_ANGLE_TOLERANCE
+    jaccard = np.zeros(angles_close.shape)
+    pairs = np.nonzero(angles_close)
+    if len(pairs[0]):
+        # Only pairs close in angle need the (costly) polygon intersection.
+        rows, row_index = np.unique(pairs[0], return_inverse=True)
+        columns, column_index = np.unique(pairs[1], return_inverse=True)
+        sub = rectangle_jaccard(detected[rows], ground_truth[columns])
+        jaccard[pairs] = sub[row_index, column_index]
+    return angles_close & (jaccard > GRASP_JACCARD_THRESHOLD)
+
+
+def box_iou(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """IoU of axis-aligned boxes ``x1, y1, x2, y2`` (continuous, no +1 pixel).
+
+    Parameters
+    ----------
+    first : (P, 4) array
+    second : (M, 4) array
+
+    Returns
+    -------
+    (P, M) float64 array
+    """
+    first = np.asarray(first, dtype=np.float64).reshape(-1, 4)
+    second = np.asarray(second, dtype=np.float64).reshape(-1, 4)
+    top_left = np.maximum(first[:, None, :2], second[None, :, :2])
+    bottom_right = np.minimum(first[:, None, 2:], second[None, :, 2:])
+    intersection = np.prod(np.clip(bottom_right - top_left, 0, None), axis=-1)
+    area_first = np.prod(np.clip(first[:, 2:] - first[:, :2], 0, None), axis=-1)
+    area_second = np.prod(np.clip(second[:, 2:] - second[:, :2], 0, None), axis=-1)
+    union = area_first[:, None] + area_second[None, :] - intersection
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, intersection / union, 0.0)
+
+
+# --------------------------------------------------------------------------- average precision
+
+
+def average_precision(scores: np.ndarray, true_positive: np.ndarray, ground_truth_count: int) -> float:
+    """All-point interpolated average precision of one category.
+
+    Parameters
+    ----------
+    scores : (D,) array
+        Detection scores over all images.
+    true_positive : (D,) bool array
+    ground_truth_count : int
+        Ground-truth objects of the category over all images.
+
+    Returns
+    -------
+    float
+        In [0, 1]; NaN when there is no ground truth.
+    """
+    if ground_truth_count <= 0:
+        return float("nan")
+    scores = np.asarray(scores, dtype=np.float64)
+    if len(scores) == 0:
+        return 0.0
+    order = np.argsort(-scores, kind="stable")
+    hits = np.asarray(true_positive, dtype=bool)[order]
+    true_cumulative = np.cumsum(hits)
+    false_cumulative = np.cumsum(~hits)
+    recall = true_cumulative / ground_truth_count
+    precision = true_cumulative / (true_cumulative + false_cumulative)
+    recall = np.concatenate([[0.0], recall, [recall[-1]]])
+    precision = np.concatenate([[0.0], precision, [0.0]])
+    envelope = np.maximum.accumulate(precision[::-1])[::-1]
+    steps = np.nonzero(recall[1:] != recall[:-1])[0]
+    return float(np.sum((recall[steps + 1] - recall[steps]) * envelope[steps + 1]))
+
+
+def match_detections(
+    boxes: np.ndarray,
+    categories: np.ndarray,
+    scores: np.ndarray,
+    ground_truth_boxes: np.ndarray,
+    ground_truth_categories: np.ndarray,
+    *,
+    allowed: np.ndarray | None = None,
+    iou_threshold: float = BOX_IOU_THRESHOLD,
+) -> np.ndarray:
+    """Greedy matching of one image's detections to its ground-truth objects.
+
+    Parameters
+    ----------
+    boxes : (D, 4) array
+    categories : (D,) int array
+        Category index (``taxonomy.CATEGORY_INDEX``, no background offset).
+    scores : (D,) array
+    ground_truth_boxes : (N, 4) array
+    ground_truth_categories : (N,) int array
+    allowed : (D, N) bool array, optional
+        Extra condition for a detection to claim an object (mAP-G: its grasp
+        matches one of the object's grasps).
+    iou_threshold : float
+
+    Returns
+    -------
+    (D,) int64 array
+        Row of the claimed ground-truth object, -1 for a false positive.
+    """
+    boxes = np.asarray(boxes).reshape(-1, 4)
+    matched = np.full(len(boxes), -1, dtype=np.int64)
+    if len(boxes) == 0 or len(ground_truth_boxes) == 0:
+        return matched
+    iou = box_iou(boxes, ground_truth_boxes)
+    eligible = (np.asarray(categories)[:, None] == np.asarray(ground_truth_categories)[None, :]) & (iou > iou_threshold)
+    if allowed is not None:
+        eligible &= allowed
+    claimed = np.zeros(len(ground_truth_boxes), dtype=bool)
+    for detection in np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable"):
+        candidates = eligible[detection] & ~claimed
+        if candidates.any():
+            best = int(np.argmax(np.where(candidates, iou[detection], -1.0)))
+            claimed[best] = True
+            matched[detection] = best
+    return matched
+
+
+# --------------------------------------------------------------------------- Table II
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """One image's annotations in its pixel frame (see ``osgd.samples.reader.Sample``).
+
+    Attributes
+    ----------
+    boxes : (N, 4) float array, pixels
+    categories : (N,) int array, ``taxonomy.CATEGORY_INDEX``
+    grasp_rectangles : (G, 5) float array
+    grasp_objects : (G,) int array, row of ``boxes``
+    grasp_tasks : (G,) int array, ``taxonomy.TASK_INDEX``
+    """
+
+    boxes: np.ndarray
+    categories: np.ndarray
+    grasp_rectangles: np.ndarray
+    grasp_objects: np.ndarray
+    grasp_tasks: np.ndarray
+
+    @classmethod
+    def from_sample(cls, sample: Any) -> GroundTruth:
+        """From an ``osgd.samples.reader.Sample``."""
+        return cls(sample.boxes, sample.category_labels, sample.grasp_rectangles, sample.grasp_objects,
+                   sample.grasp_tasks)
+
+
+@dataclass(frozen=True)
+class Detections:
+    """One image's detections in its pixel frame (the contract's eval output, as numpy).
+
+    Attributes
+    ----------
+    boxes : (D, 4) float array, pixels
+    categories : (D,) int array, ``taxonomy.CATEGORY_INDEX`` (model label - 1)
+    scores : (D,) float array
+    grasps : (D, K, 5) float array, grasp candidates of each detection
+    grasp_stability : (D, K) float array, P(stable)
+    grasp_task_probs : (D, K, 12) float array, P(task | stable)
+    """
+
+    boxes: np.ndarray
+    categories: np.ndarray
+    scores: np.ndarray
+    grasps: np.ndarray
+    grasp_stability: np.ndarray
+    grasp_task_probs: np.ndarray
+
+    def top_grasp(self, detection: int) -> np.ndarray | None:
+        """The ``(5,)`` rectangle of highest stability of a detection, None when it has none."""
+        stability = self.grasp_stability[detection]
+        if len(stability) == 0:
+            return None
+        return self.grasps[detection, int(np.argmax(stability))]
+
+
+def right_tasks(candidates: np.ndarray, object_grasps: np.ndarray, object_tasks: np.ndarray,
+                unmatched_task: Literal["nearest", "wrong"] = "nearest") -> list[set[int]]:
+    """The task labels counted as right for grasp candidates of a matched object.
+
+    Parameters
+    ----------
+    candidates : (C, 5) array
+        Detected grasp rectangles.
+    object_grasps : (G, 5) array
+        Ground-truth grasps of the matched object (G >= 1).
+    object_tasks : (G,) int array
+    unmatched_task : {"nearest", "wrong"}
+        What a candidate that matches no ground-truth grasp is judged
+        against (see the module docstring).
+
+    Returns
+    -------
+    list of set of int
+        Per candidate, the task indices that are right (empty: none is).
+    """
+    matches = grasp_match_matrix(candidates, object_grasps)
+    distance = np.linalg.norm(np.asarray(candidates, dtype=np.float64)[:, None, :2]
+                              - np.asarray(object_grasps, dtype=np.float64)[None, :, :2], axis=-1)
+    result = []
+    for row in range(len(candidates)):
+        pool = matches[row]
+        if not pool.any():
+            if unmatched_task == "wrong":
+                result.append(set())
+                continue
+            pool = np.ones(len(object_grasps), dtype=bool)
+        pooled_distance = np.where(pool, distance[row], np.inf)
+        nearest = pooled_distance <= pooled_distance.min() + 1e-6
+        result.append({int(task) for task in np.asarray(object_tasks)[nearest]})
+    return result
+
+
+@dataclass
+class TableTwoEvaluator:
+    """Accumulates detections over images and computes the row of Table II.
+
+    Parameters
+    ----------
+    top_k : sequence of int
+        The k of Acc-T top-k.
+    unmatched_task : {"nearest", "wrong"}
+        See the module docstring (Acc-T).
+
+    Examples
+    --------
+    >>> evaluator = TableTwoEvaluator()                          # doctest: +SKIP
+    >>> for detections, truth in pairs:                          # doctest: +SKIP
+    ...     evaluator.add(detections, truth)
+    >>> evaluator.result()["mAP"]                                # doctest: +SKIP
+    """
+
+    top_k: Sequence[int] = TOP_K
+    unmatched_task: Literal["nearest", "wrong"] = "nearest"
+    _scores: list[np.ndarray] = field(default_factory=list)
+    _categories: list[np.ndarray] = field(default_factory=list)
+    _box_hits: list[np.ndarray] = field(default_factory=list)
+    _grasp_hits: list[np.ndarray] = field(default_factory=list)
+    _ground_truth_counts: np.ndarray = field(default_factory=lambda: np.zeros(len(CATEGORIES), dtype=np.int64))
+    _task_hits: dict[int, list[bool]] = field(default_factory=dict)
+    images: int = 0
+
+    def add(self, detections: Detections, truth: GroundTruth) -> None:
+        """Add one image's detections and ground truth."""
+        self.images += 1
+        categories = np.asarray(detections.categories, dtype=np.int64).reshape(-1)
+        truth_categories = np.asarray(truth.categories, dtype=np.int64).reshape(-1)
+        np.add.at(self._ground_truth_counts, truth_categories, 1)
+        box_match = match_detections(detections.boxes, categories, detections.scores, truth.boxes,
+                                     truth_categories)
+        grasp_objects = np.asarray(truth.grasp_objects, dtype=np.int64).reshape(-1)
+        truth_grasps = np.asarray(truth.grasp_rectangles, dtype=np.float64).reshape(-1, 5)
+        allowed = np.zeros((len(categories), len(truth_categories)), dtype=bool)
+        for detection in range(len(categories)):
+            top = detections.top_grasp(detection)
+            if top is None or len(truth_grasps) == 0:
+                continue
+            matches = grasp_match_matrix(top[None], truth_grasps)[0]
+            allowed[detection, grasp_objects[matches]] = True
+        grasp_match = match_detections(detections.boxes, categories, detections.scores, truth.boxes,
+                                       truth_categories, allowed=allowed)
+        self._scores.append(np.asarray(detections.scores, dtype=np.float64).reshape(-1))
+        self._categories.append(categories)
+        self._box_hits.append(box_match >= 0)
+        self._grasp_hits.append(grasp_match >= 0)
+        truth_tasks = np.asarray(truth.grasp_tasks, dtype=np.int64).reshape(-1)
+        for detection in np.nonzero(box_match >= 0)[0]:
+            of_object = grasp_objects == box_match[detection]
+            if not of_object.any():
+                continue
+            self._judge_tasks(detections, int(detection), truth_grasps[of_object], truth_tasks[of_object])
+
+    def _judge_tasks(self, detections: Detections, detection: int, object_grasps: np.ndarray,
+                     object_tasks: np.ndarray) -> None:
+        stability = np.asarray(detections.grasp_stability[detection], dtype=np.float64).reshape(-1)
+        order = np.argsort(-stability, kind="stable")[:max(self.top_k)]
+        candidates = np.asarray(detections.grasps[detection], dtype=np.float64).reshape(-1, 5)[order]
+        predicted = np.argmax(np.asarray(detections.grasp_task_probs[detection]).reshape(-1, len(TASKS))[order],
+                              axis=-1)
+        allowed = right_tasks(candidates, object_grasps, object_tasks, self.unmatched_task)
+        correct = np.array([int(task) in right for task, right in zip(predicted, allowed, strict=True)], dtype=bool)
+        for k in self.top_k:
+            self._task_hits.setdefault(k, []).append(bool(len(correct) > 0 and correct[:k].all()))
+
+    def result(self) -> dict[str, Any]:
+        """The metrics, as fractions in [0, 1] (NaN where undefined).
+
+        Returns
+        -------
+        dict
+            ``mAP``, ``mAP-G``, ``Acc-T top<k>`` for each k, ``images``,
+            ``rois`` (detections judged for Acc-T), ``AP`` and ``AP-G`` per
+            category name (only the categories with ground truth).
+        """
+        scores = np.concatenate(self._scores) if self._scores else np.zeros(0)
+        categories = np.concatenate(self._categories) if self._categories else np.zeros(0, dtype=np.int64)
+        box_hits = np.concatenate(self._box_hits) if self._box_hits else np.zeros(0, dtype=bool)
+        grasp_hits = np.concatenate(self._grasp_hits) if self._grasp_hits else np.zeros(0, dtype=bool)
+        per_category, per_category_grasp = {}, {}
+        for index, name in enumerate(CATEGORIES):
+            count = int(self._ground_truth_counts[index])
+            if count == 0:
+                continue
+            chosen = categories == index
+            per_category[name] = average_precision(scores[chosen], box_hits[chosen], count)
+            per_category_grasp[name] = average_precision(scores[chosen], grasp_hits[chosen], count)
+        result: dict[str, Any] = {
+            "mAP": float(np.mean(list(per_category.values()))) if per_category else float("nan"),
+            "mAP-G": float(np.mean(list(per_category_grasp.values()))) if per_category_grasp else float("nan"),
+        }
+        rois = 0
+        for k in self.top_k:
+            hits = self._task_hits.get(k, [])
+            rois = len(hits)
+            result[f"Acc-T top{k}"] = float(np.mean(hits)) if hits else float("nan")
+        result.update({"images": self.images, "rois": rois, "AP": per_category, "AP-G": per_category_grasp})
+        return result
+
+
+# --------------------------------------------------------------------------- speed
+
+
+def measure_speed(run_once: Any, inputs: Sequence[Any], warmup: int = 2, repeats: int | None = None,
+                  device: str = "cpu") -> Mapping[str, Any]:
+    """Frames per second of a model on one input at a time.
+
+    Parameters
+    ----------
+    run_once : callable
+        Called with one input (e.g. ``lambda image: model([image])``); must
+        return once the result is computed (synchronises CUDA itself when
+        ``device`` is a CUDA device).
+    inputs : sequence
+        Inputs cycled through; the first ``warmup`` calls are not timed.
+    warmup : int
+    repeats : int, optional
+        Timed calls; default one per input.
+    device : str
+        Named in the result, and synchronised when it is a CUDA device.
+
+    Returns
+    -------
+    dict
+        ``fps``, ``seconds_per_image``, ``images`` (timed), ``device``.
+    """
+    if not inputs:
+        raise ValueError("measure_speed needs at least one input")
+    synchronise = None
+    if device.startswith("cuda"):
+        import torch  # noqa: PLC0415
+
+        synchronise = torch.cuda.synchronize
+    for index in range(warmup):
+        run_once(inputs[index % len(inputs)])
+    if synchronise:
+        synchronise()
+    repeats = len(inputs) if repeats is None else repeats
+    start = time.perf_counter()
+    for index in range(repeats):
+        run_once(inputs[index % len(inputs)])
+    if synchronise:
+        synchronise()
+    elapsed = time.perf_counter() - start
+    seconds = elapsed / max(repeats, 1)
+    return {"fps": 1.0 / seconds if seconds > 0 else float("inf"), "seconds_per_image": seconds,
+            "images": repeats, "device": device}
