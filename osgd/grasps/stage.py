@@ -1,17 +1,36 @@
-"""The grasps stage (not implemented yet: issue #4)."""
+"""The grasps stage: 6-DoF parallel-jaw grasps with task labels (issue #4).
+
+One work item per ``models`` shard, with the same item id, reading exactly
+that shard; it writes one ``grasps`` shard holding the grasps of every model
+of the models shard (none for a shard with no rows, i.e. a rejected model).
+The checks stage pairs models and grasps shards by that item id.
+
+How each model's grasps are made: :mod:`osgd.grasps.model_grasps`; the label
+rules: :mod:`osgd.grasps.labels`; the collision test:
+:mod:`osgd.grasps.geometry`; all documented in ``docs/grasps.md``.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import logging
+from collections import Counter
 from collections.abc import Mapping, Sequence
 
 import pyarrow as pa
 
-from osgd.stage import PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardStore
+from osgd.grasps.labels import LabelRule, effective_rules
+from osgd.grasps.model_grasps import GraspAnnotator, ModelInput, rules_payload
+from osgd.grasps.params import GraspsStageParams
+from osgd.gripper import PANDA, Gripper
+from osgd.schemas import GRASPS
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.store import ShardRecord, ShardStore
+from osgd.taxonomy import CATEGORIES, TASKS
 
+log = logging.getLogger(__name__)
 
-class GraspsStageParams(StageParams):
-    """Parameters of the grasps stage."""
+__all__ = ["GraspsStage", "GraspsStageParams"]
 
 
 class GraspsStage(Stage):
@@ -19,16 +38,95 @@ class GraspsStage(Stage):
 
     name = "grasps"
     table = "grasps"
+    # Bump whenever the grasps of the same models change.
     version = 1
-    inputs = ('models',)
+    inputs = ("models",)
     Params = GraspsStageParams
     description = "6-DoF parallel-jaw grasps with task labels."
-    implemented = False
 
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
     ) -> list[WorkItem]:
-        return []
+        """One item per models shard, same item id (module text).
 
-    def build(self, item: WorkItem, store: ShardStore) -> pa.Table:
-        raise NotImplementedError("the grasps stage is not implemented yet (issue #4)")
+        The payload holds the parameters, the seed, the gripper's dimensions
+        and the effective label rules, so a change to any of them (including
+        the defaults in code) gives new shard keys.
+        """
+        assert isinstance(params, GraspsStageParams)
+        payload = {
+            "params": params.key_dict(),
+            "seed": int(seed),
+            "gripper": dataclasses.asdict(PANDA),
+            "rules": rules_payload(effective_rules(params.label_rules)),
+        }
+        return [
+            WorkItem(shard.item.item_id, payload, {"models": (shard.key,)})
+            for shard in upstream.get("models", ())
+        ]
+
+    def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
+        """The grasps of every model in the item's models shard."""
+        params = GraspsStageParams(**item.payload["params"])
+        rules = {category: LabelRule(**rule) for category, rule in item.payload["rules"].items()}
+        gripper = Gripper(**item.payload["gripper"])
+        (models_key,) = item.inputs["models"]
+        models = store.read("models", models_key)
+        tables = []
+        notes: list[str] = []
+        for row in range(models.num_rows):
+            model = ModelInput.from_table(models, row)
+            annotator = GraspAnnotator(model, params, rules, gripper, item.payload["seed"])
+            tables.append(annotator.grasps())
+            notes.extend(annotator.notes)
+            log.debug("%s: %d grasps", model.name, tables[-1].num_rows)
+        table = pa.concat_tables(tables) if tables else GRASPS.empty_table()
+        return BuildResult(table, notes)
+
+    def summary(self, store: ShardStore, records: list[ShardRecord]) -> str:
+        """Grasps per category and task, as a text table."""
+        counts = grasp_counts(store, records)
+        return format_counts(counts)
+
+
+def grasp_counts(store: ShardStore, records: Sequence[ShardRecord]) -> Counter[tuple[str, str]]:
+    """(category, task) -> number of grasps in the given grasps shards.
+
+    Categories come from the models shards on disk (read by column, so cheap);
+    a grasp whose model is not found counts under category ``"?"``.
+    """
+    categories: dict[str, str] = {}
+    for key in store.keys_on_disk("models"):
+        models = store.read("models", key, columns=["model_id", "category"])
+        categories.update(zip(models.column("model_id").to_pylist(), models.column("category").to_pylist(),
+                              strict=True))
+    counts: Counter[tuple[str, str]] = Counter()
+    for record in records:
+        grasps = store.read("grasps", record.key, columns=["model_id", "task"])
+        for model_id, task in zip(grasps.column("model_id").to_pylist(), grasps.column("task").to_pylist(),
+                                  strict=True):
+            counts[(categories.get(model_id, "?"), task)] += 1
+    return counts
+
+
+def format_counts(counts: Counter[tuple[str, str]]) -> str:
+    """A text table: one row per category, one column per task seen, totals."""
+    if not counts:
+        return "grasps: none"
+    tasks = [task for task in TASKS if any(key[1] == task for key in counts)]
+    extra = sorted({category for category, _ in counts} - set(CATEGORIES))
+    categories = [category for category in (*CATEGORIES, *extra) if any(key[0] == category for key in counts)]
+    header = ["category", *tasks, "total"]
+    lines = [header]
+    for category in categories:
+        values = [counts.get((category, task), 0) for task in tasks]
+        lines.append([category, *map(str, values), str(sum(values))])
+    totals = [sum(counts.get((category, task), 0) for category in categories) for task in tasks]
+    lines.append(["total", *map(str, totals), str(sum(totals))])
+    widths = [max(len(line[column]) for line in lines) for column in range(len(header))]
+    text = [
+        "  ".join(cell.ljust(widths[0]) if column == 0 else cell.rjust(widths[column])
+                  for column, cell in enumerate(line))
+        for line in lines
+    ]
+    return "grasps per category and task\n" + "\n".join(text)
