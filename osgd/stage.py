@@ -198,22 +198,26 @@ class _BuildTask:
     force: bool
 
 
-def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str]]:
-    """Build and write one shard; runs in a worker. Module-level so it pickles."""
+def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str], bool]:
+    """Build and write one shard; runs in a worker. Module-level so it pickles.
+
+    Returns the shard's record, its notes, and whether it was built here
+    (False when another process finished it while this one waited).
+    """
     module_name, class_name = task.stage_ref.split(":")
     stage = getattr(importlib.import_module(module_name), class_name)()
     store = ShardStore(task.data_dir)
     with store.lock(stage.table, task.key):
         if not task.force and store.is_done(stage.table, task.key):
             # Another process built it while this one waited for the lock.
-            return store.verify(stage.table, task.key), read_notes(store, stage.table, task.key)
+            return store.verify(stage.table, task.key), read_notes(store, stage.table, task.key), False
         result = stage.build(task.item, store)
         if isinstance(result, pa.Table):
             result = BuildResult(result)
         record = store.write(stage.table, task.key, task.item.item_id, result.table)
         if result.notes:
             write_notes(store, stage.table, task.key, result.notes)
-        return record, list(result.notes)
+        return record, list(result.notes), True
 
 
 def _notes_path(store: ShardStore, table: str, key: str) -> Path:
@@ -275,6 +279,7 @@ def run_stage(
     report = StageReport(stage.name)
     done: dict[str, ShardRecord] = {}
     to_build: list[PlannedShard] = []
+    rejected: set[str] = set()  # present on disk but judged bad: rebuild even if a worker finds it "done"
     for shard in shards:
         if force:
             to_build.append(shard)
@@ -286,6 +291,7 @@ def run_stage(
             if path.exists():
                 log.warning("%s; rebuilding", error)
                 report.rebuilt.append(str(error))
+                rejected.add(shard.key)
             to_build.append(shard)
             continue
         report.reused += 1
@@ -296,7 +302,10 @@ def run_stage(
             on_item(shard.item.item_id, "reused")
 
     stage_ref = f"{type(stage).__module__}:{type(stage).__qualname__}"
-    tasks = [_BuildTask(stage_ref, shard.item, shard.key, str(store.root), force) for shard in to_build]
+    tasks = [
+        _BuildTask(stage_ref, shard.item, shard.key, str(store.root), force or shard.key in rejected)
+        for shard in to_build
+    ]
     for index, outcome in executor.map_unordered(_build_task, tasks):
         shard = to_build[index]
         if isinstance(outcome, TaskFailure):
@@ -305,13 +314,16 @@ def run_stage(
             if on_item:
                 on_item(shard.item.item_id, "failed")
             continue
-        record, notes = outcome
+        record, notes, built_here = outcome
         done[shard.key] = record
-        report.built += 1
+        if built_here:
+            report.built += 1
+        else:
+            report.reused += 1
         if notes:
             report.notes[shard.item.item_id] = notes
         if on_item:
-            on_item(shard.item.item_id, "built")
+            on_item(shard.item.item_id, "built" if built_here else "reused")
 
     report.records = [done[shard.key] for shard in shards if shard.key in done]
     return report
