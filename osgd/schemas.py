@@ -250,3 +250,31 @@ def mesh_from_arrow(vertices_cell: pa.Scalar | list, faces_cell: pa.Scalar | lis
 def empty_table(table: str) -> pa.Table:
     """A table with no rows and the schema of ``table``."""
     return TABLES[table].empty_table()
+
+
+def schemas_markdown() -> str:
+    """The table schemas as Markdown: ``docs/schemas.md`` is this text.
+
+    Regenerate with ``python -m osgd.schemas > docs/schemas.md``; a test
+    fails when the two disagree.
+    """
+    lines = [
+        "# Table schemas",
+        "",
+        f"Generated from `osgd/schemas.py` (schema version {SCHEMA_VERSION}) by "
+        "`python -m osgd.schemas > docs/schemas.md`; do not edit by hand.",
+        "",
+        "Lengths in metres, angles in radians, masses in kilograms; quaternions are "
+        "`(x, y, z, w)`. Frames: see `docs/architecture.md`.",
+    ]
+    for name, schema in TABLES.items():
+        lines += ["", f"## `{name}`", "", "| column | type | meaning |", "| --- | --- | --- |"]
+        for field in schema:
+            doc = (field.metadata or {}).get(b"doc", b"").decode().replace("|", "\\|")
+            kind = str(field.type).replace("|", "\\|")
+            lines.append(f"| `{field.name}` | `{kind}` | {doc} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(schemas_markdown(), end="")
