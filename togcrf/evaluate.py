@@ -1,0 +1,325 @@
+"""Evaluate a checkpoint on a split of a data dir: the row of Table II.
+
+``togcrf eval CHECKPOINT --data DIR`` runs the model on every sample of the
+split (batch 1), scores it with :mod:`togcrf.metrics` and measures its speed;
+``togcrf table RUN_DIR...`` prints the rows of several runs side by side, as
+in the paper's Table II (percentages; speed in frames per second).
+
+An evaluation JSON (``eval.json`` next to the checkpoint unless ``--out``
+says otherwise) holds ``model``, ``checkpoint``, ``data``, ``pipeline``,
+``split``, ``metrics`` (fractions; see :meth:`TableTwoEvaluator.result`),
+``speed`` (see :func:`togcrf.metrics.measure_speed`) and ``row`` (the Table
+II numbers as printed).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import torch
+import typer
+
+from togcrf.metrics import TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
+
+log = logging.getLogger(__name__)
+
+#: Column names of Table II, in the paper's order.
+TABLE_COLUMNS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10", "fps")
+
+#: Name of the evaluation file a run dir holds.
+EVAL_FILE = "eval.json"
+
+#: Paper names of the models (Table II).
+PAPER_NAMES = {
+    "fcgn-task": "FCGN + Task",
+    "tog": "TOG",
+    "tog-crfs-omega": "TOG-CRFs omega",
+    "tog-crfs-mu": "TOG-CRFs mu",
+    "tog-crfs": "TOG-CRFs",
+}
+
+
+def prediction_to_numpy(output: dict[str, torch.Tensor], scale: float) -> Detections:
+    """One image's model output (the contract's eval format) in the sample's pixel frame.
+
+    Parameters
+    ----------
+    output : dict of tensors
+        ``boxes`` (N, 4), ``labels`` (N,) category index + 1, ``scores``
+        (N,), ``grasps`` (N, K, 5), ``grasp_stability`` (N, K),
+        ``grasp_task_probs`` (N, K, 12), all in network-input pixels.
+    scale : float
+        The factor :func:`togcrf.data.depth_to_tensor` applied to the image.
+
+    Returns
+    -------
+    Detections
+        Boxes and grasp centres and sizes divided by ``scale``; angles kept.
+    """
+    def array(name: str) -> np.ndarray:
+        return output[name].detach().to("cpu", torch.float64).numpy()
+
+    boxes = array("boxes").reshape(-1, 4) / scale
+    count = len(boxes)
+    grasps = array("grasps").reshape(count, -1, 5).copy()
+    grasps[..., :4] /= scale
+    return Detections(
+        boxes=boxes,
+        categories=output["labels"].detach().cpu().numpy().astype(np.int64).reshape(-1) - 1,
+        scores=array("scores").reshape(-1),
+        grasps=grasps,
+        grasp_stability=array("grasp_stability").reshape(count, -1),
+        grasp_task_probs=array("grasp_task_probs").reshape(count, grasps.shape[1], -1),
+    )
+
+
+def run_model(model: torch.nn.Module, image: torch.Tensor, scale: float) -> Detections:
+    """Detections of a model (eval mode) on one ``(1, H, W)`` image tensor, in sample pixels."""
+    with torch.inference_mode():
+        output = model([image])[0]
+    return prediction_to_numpy(output, scale)
+
+
+def evaluate_model(
+    model: torch.nn.Module,
+    samples: Iterable[Any],
+    image_size: int | None,
+    *,
+    device: str = "cpu",
+    speed_images: int = 10,
+    unmatched_task: str = "nearest",
+) -> dict[str, Any]:
+    """Table II metrics and speed of a model on samples.
+
+    Parameters
+    ----------
+    model : torch.nn.Module
+        In eval mode, on ``device``.
+    samples : iterable of ``osgd.samples.reader.Sample``
+    image_size : int or None
+        Passed to :func:`togcrf.data.depth_to_tensor` (the training config's).
+    device : str
+    speed_images : int
+        How many of the first images are kept for the speed measurement
+        (after the metrics pass, so the model is warm; 0 skips it).
+    unmatched_task : {"nearest", "wrong"}
+        See :mod:`togcrf.metrics` (Acc-T).
+
+    Returns
+    -------
+    dict
+        ``metrics`` and ``speed`` (None when skipped).
+
+    Raises
+    ------
+    ValueError
+        If there are no samples.
+    """
+    from togcrf.data import depth_to_tensor  # noqa: PLC0415
+
+    evaluator = TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task)
+    kept_images: list[torch.Tensor] = []
+    model.eval()
+    for sample in samples:
+        image, scale = depth_to_tensor(sample.depth, image_size)
+        image = image.to(device)
+        evaluator.add(run_model(model, image, scale), GroundTruth.from_sample(sample))
+        if len(kept_images) < speed_images:
+            kept_images.append(image)
+    if evaluator.images == 0:
+        raise ValueError("no samples to evaluate")
+    speed = None
+    if kept_images:
+        def run_once(image: torch.Tensor) -> None:
+            with torch.inference_mode():
+                model([image])
+
+        speed = dict(measure_speed(run_once, kept_images, warmup=min(2, len(kept_images)), device=device))
+    return {"metrics": evaluator.result(), "speed": speed}
+
+
+def table_row(result: dict[str, Any]) -> dict[str, float | None]:
+    """The Table II numbers of an evaluation: metrics in percent, speed in fps (None if missing)."""
+    metrics = result.get("metrics", {})
+    row: dict[str, float | None] = {}
+    for column in TABLE_COLUMNS[:-1]:
+        value = metrics.get(column)
+        row[column] = None if value is None or (isinstance(value, float) and math.isnan(value)) else 100 * value
+    speed = result.get("speed") or {}
+    row["fps"] = speed.get("fps")
+    return row
+
+
+def _json_safe(value: Any) -> Any:
+    """NaN and infinity as null, numpy scalars as Python numbers: strict JSON."""
+    if isinstance(value, dict):
+        return {str(key): _json_safe(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_json(path: Path, document: dict[str, Any]) -> None:
+    """Write strict JSON (no NaN), creating the parent folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(_json_safe(document), indent=2, allow_nan=False) + "\n")
+
+
+def evaluate_checkpoint(
+    checkpoint: Path,
+    data_dir: Path,
+    *,
+    pipeline: str | None = None,
+    split: str = "test",
+    device: str = "cpu",
+    max_samples: int | None = None,
+    speed_images: int = 10,
+    unmatched_task: str = "nearest",
+) -> dict[str, Any]:
+    """Load a checkpoint and evaluate it on a split of a data dir.
+
+    Returns
+    -------
+    dict
+        The evaluation document (see the module docstring).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the checkpoint or the data do not exist.
+    ValueError
+        If the split has no samples.
+    """
+    from itertools import islice  # noqa: PLC0415
+
+    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from togcrf.train import load_checkpoint  # noqa: PLC0415
+
+    checkpoint = Path(checkpoint)
+    if not checkpoint.is_file():
+        raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
+    model, config = load_checkpoint(checkpoint, device=device)
+    samples = iter_samples(data_dir, pipeline=pipeline, split=split)
+    if max_samples is not None:
+        samples = islice(samples, max_samples)
+    try:
+        result = evaluate_model(model, samples, config.get("image_size"), device=device,
+                                speed_images=speed_images, unmatched_task=unmatched_task)
+    except ValueError as error:
+        raise ValueError(f"{data_dir}: split {split!r}: {error}") from error
+    result = {
+        "model": config.get("model", "unknown"),
+        "checkpoint": str(checkpoint),
+        "data": str(data_dir),
+        "pipeline": pipeline,
+        "split": split,
+        "unmatched_task": unmatched_task,
+        "torch_threads": torch.get_num_threads(),
+        **result,
+    }
+    result["row"] = table_row(result)
+    return result
+
+
+def format_table(rows: Sequence[tuple[str, dict[str, float | None]]]) -> str:
+    """Table II as fixed-width text: one line per (name, row)."""
+    name_width = max([len("Algorithm"), *(len(name) for name, _ in rows)])
+    header = "Algorithm".ljust(name_width) + "".join(f"{column:>13}" for column in TABLE_COLUMNS)
+    lines = [header, "-" * len(header)]
+    for name, row in rows:
+        cells = "".join(f"{'-':>13}" if row.get(column) is None else f"{row[column]:>13.1f}"
+                        for column in TABLE_COLUMNS)
+        lines.append(name.ljust(name_width) + cells)
+    return "\n".join(lines)
+
+
+def read_evaluation(path: Path) -> dict[str, Any]:
+    """An evaluation JSON, from its path or from the run dir that holds ``eval.json``.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no evaluation there.
+    """
+    path = Path(path)
+    file = path / EVAL_FILE if path.is_dir() else path
+    if not file.is_file():
+        raise FileNotFoundError(f"{file}: no evaluation; run `togcrf eval {path}/checkpoint.pt --data DIR` first")
+    try:
+        return json.loads(file.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{file}: not an evaluation JSON ({error})") from error
+
+
+def row_name(document: dict[str, Any]) -> str:
+    """The paper's name of an evaluated model, or its own name."""
+    model = str(document.get("model", "unknown"))
+    return PAPER_NAMES.get(model, model)
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def eval_command(
+    checkpoint: Annotated[Path, typer.Argument(help="A checkpoint.pt written by `togcrf train`.")],
+    *,
+    data: Annotated[Path, typer.Option("--data", help="Data dir holding samples shards.")],
+    pipeline: Annotated[str | None, typer.Option(help="Only the samples of this pipeline's manifest.")] = None,
+    split: Annotated[str, typer.Option(help="train or test.")] = "test",
+    out: Annotated[Path | None, typer.Option(help=f"Evaluation JSON; default {EVAL_FILE} by the checkpoint.")] = None,
+    device: Annotated[str, typer.Option(help="torch device, e.g. cpu or cuda.")] = "cpu",
+    max_samples: Annotated[int | None, typer.Option(help="Evaluate only the first N samples of the split.")] = None,
+    speed_images: Annotated[int, typer.Option(help="Images timed for the speed (batch 1, after warm-up).")] = 10,
+    unmatched_task: Annotated[str, typer.Option(help="Acc-T: 'nearest' or 'wrong' (togcrf.metrics).")] = "nearest",
+) -> None:
+    """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON."""
+    try:
+        document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split, device=device,
+                                       max_samples=max_samples, speed_images=speed_images,
+                                       unmatched_task=unmatched_task)
+    except (FileNotFoundError, ValueError, KeyError) as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(1) from error
+    path = out if out is not None else Path(checkpoint).parent / EVAL_FILE
+    write_json(path, document)
+    typer.echo(format_table([(row_name(document), document["row"])]))
+    metrics = document["metrics"]
+    typer.echo(f"{metrics['images']} images, {metrics['rois']} RoIs judged for Acc-T; "
+               f"speed on {document['speed']['device'] if document['speed'] else '-'} "
+               f"({document['torch_threads']} threads); written to {path}")
+
+
+def table_command(
+    run_dirs: Annotated[list[Path], typer.Argument(help=f"Run dirs holding {EVAL_FILE}, or evaluation JSONs.")],
+    out: Annotated[Path | None, typer.Option(help="Also write the table as JSON here.")] = None,
+) -> None:
+    """Print Table II for several evaluated runs side by side."""
+    rows = []
+    try:
+        documents = [read_evaluation(path) for path in run_dirs]
+    except (FileNotFoundError, ValueError) as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(1) from error
+    for document in documents:
+        rows.append((row_name(document), document.get("row") or table_row(document)))
+    typer.echo(format_table(rows))
+    if out is not None:
+        write_json(out, {"columns": list(TABLE_COLUMNS),
+                         "rows": [{"name": name, "source": str(path), **row}
+                                  for (name, row), path in zip(rows, run_dirs, strict=True)]})
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``eval`` and ``table`` to the ``togcrf`` command line."""
+    app.command("eval")(eval_command)
+    app.command("table")(table_command)
