@@ -73,7 +73,9 @@ def main(
     _Global.workers = workers
 
 
-ConfigOption = Annotated[Path, typer.Option("--config", "-c", help="Pipeline config (TOML), e.g. pipelines/default.toml.")]
+ConfigOption = Annotated[
+    Path, typer.Option("--config", "-c", help="Pipeline config (TOML), e.g. pipelines/default.toml.")
+]
 SetOption = Annotated[
     list[str] | None,
     typer.Option("--set", "-s", help="Override a config value: section.key=value (repeatable)."),

@@ -153,7 +153,9 @@ def build_config(
     ------
     ConfigError
     """
-    sections: dict[str, dict[str, Any]] = {name: dict(value) for name, value in document.items() if isinstance(value, dict)}
+    sections: dict[str, dict[str, Any]] = {
+        name: dict(value) for name, value in document.items() if isinstance(value, dict)
+    }
     loose = [name for name, value in document.items() if not isinstance(value, dict)]
     if loose:
         raise ConfigError(f"{origin}: top-level key(s) {loose} must sit inside a [section]")

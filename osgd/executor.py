@@ -39,7 +39,7 @@ def call_safely(function: Callable[[Any], Any], task: Any) -> Any:
     """Run ``function(task)``, turning any exception into a :class:`TaskFailure`."""
     try:
         return function(task)
-    except Exception as error:  # noqa: BLE001 - reported, never swallowed
+    except Exception as error:
         return TaskFailure(repr(error), traceback.format_exc())
 
 
@@ -96,7 +96,7 @@ class ProcessPoolExecutor:
                 index = futures[future]
                 try:
                     yield index, future.result()
-                except Exception as error:  # noqa: BLE001 - a worker died (killed, out of memory)
+                except Exception as error:
                     yield index, TaskFailure(repr(error), traceback.format_exc())
 
 

@@ -206,7 +206,9 @@ def get_mesh_pose(body: ObjectBody) -> tuple[np.ndarray, np.ndarray]:
     inverse_position, inverse_quaternion = pybullet.invertTransform(
         body.inertial_position.tolist(), body.inertial_quaternion.tolist()
     )
-    position, quaternion = pybullet.multiplyTransforms(com_position, com_quaternion, inverse_position, inverse_quaternion)
+    position, quaternion = pybullet.multiplyTransforms(
+        com_position, com_quaternion, inverse_position, inverse_quaternion
+    )
     return np.asarray(position, dtype=np.float64), np.asarray(quaternion, dtype=np.float64)
 
 

@@ -145,7 +145,8 @@ class Stage(abc.ABC):
                 raise ValueError(f"stage {self.name!r} planned item {item.item_id!r} twice")
             seen.add(item.item_id)
             input_keys = [key for keys in item.inputs.values() for key in keys]
-            shards.append(PlannedShard(item, shard_key(self.name, self.version, item.item_id, item.payload, input_keys)))
+            key = shard_key(self.name, self.version, item.item_id, item.payload, input_keys)
+            shards.append(PlannedShard(item, key))
         return shards
 
 
@@ -309,7 +310,9 @@ def run_stage(
     for index, outcome in executor.map_unordered(_build_task, tasks):
         shard = to_build[index]
         if isinstance(outcome, TaskFailure):
-            log.error("stage %s, item %s failed: %s\n%s", stage.name, shard.item.item_id, outcome.error, outcome.traceback)
+            log.error(
+                "stage %s, item %s failed: %s\n%s", stage.name, shard.item.item_id, outcome.error, outcome.traceback
+            )
             report.failures.append(ItemFailure(shard.item.item_id, shard.key, outcome.error, outcome.traceback))
             if on_item:
                 on_item(shard.item.item_id, "failed")

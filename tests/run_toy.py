@@ -12,11 +12,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from toy_stage import ToyParams, ToyStage  # noqa: E402
+from toy_stage import ToyParams, ToyStage
 
-from osgd.executor import make_executor  # noqa: E402
-from osgd.stage import run_stage  # noqa: E402
-from osgd.store import ShardStore  # noqa: E402
+from osgd.executor import make_executor
+from osgd.stage import run_stage
+from osgd.store import ShardStore
 
 if __name__ == "__main__":
     data_dir, workers, items = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
