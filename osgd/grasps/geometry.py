@@ -10,10 +10,10 @@ python-fcl is not available, so a gripper pose collides with the object when
 either
 
 1. a sample of the object's surface lies deeper than ``margin`` inside one
-   of the gripper's boxes (``Gripper.boxes``). The surface is sampled with
-   at least one point per face plus one per ``spacing**2`` of area, so any
-   piece of surface larger than about ``spacing`` that enters a box deeper
-   than ``margin`` is found; or
+   of the gripper's boxes (``Gripper.boxes``). The samples are every vertex,
+   one point per face and one more per ``spacing**2`` of area, so any corner
+   and any piece of surface larger than about ``spacing`` that enters a box
+   deeper than ``margin`` is found; or
 2. the centre of a box lies deeper than ``margin`` inside one of the model's
    convex parts (the collision compound the check stage simulates), which
    catches a box buried in the object with no surface crossing it.
@@ -143,7 +143,7 @@ class ObjectSurface:
         rng: np.random.Generator,
         max_points: int,
     ) -> ObjectSurface:
-        """At least one random point per face plus one per ``spacing**2`` of area.
+        """Every vertex, one random point per face and one per ``spacing**2`` of area.
 
         Parameters
         ----------
@@ -172,6 +172,13 @@ class ObjectSurface:
         points = corners[:, 0] + first[:, None] * (corners[:, 1] - corners[:, 0]) + second[:, None] * (
             corners[:, 2] - corners[:, 0]
         )
+        # The vertices too, so that a sharp corner poking into a box is found
+        # however small the area near it; each takes a face it belongs to.
+        vertex_faces = np.full(len(mesh.vertices), -1, dtype=np.int64)
+        vertex_faces[mesh.faces[::-1].ravel()] = np.repeat(np.arange(len(mesh.faces))[::-1], 3)
+        used = np.flatnonzero(vertex_faces >= 0)
+        points = np.concatenate([points, np.asarray(mesh.vertices)[used]])
+        faces = np.concatenate([faces, vertex_faces[used]])
         parts = np.asarray(face_parts, dtype=np.int64)[faces]
         return cls(points, np.asarray(mesh.face_normals)[faces], faces, parts, cKDTree(points))
 
