@@ -1,17 +1,125 @@
-"""The models stage (not implemented yet: issue #3)."""
+"""The models stage: every object that can enter a scene, at real size.
+
+One work item per model, from any mix of three sources:
+
+- ``procedural``: :mod:`osgd.models.procedural`, ``procedural_per_category``
+  variants of each category (item ids ``procedural/hammer_03``);
+- ``osgd``: the paper authors' models in the OSGD layout under ``osgd_dir``
+  (item ids ``osgd/hammer_001``), see :mod:`osgd.models.osgd_import`;
+- ``user``: meshes with a TOML sidecar under ``user_dir`` (item ids
+  ``user/<file stem>``), see :mod:`osgd.models.user`.
+
+Each model is validated and repaired (:mod:`osgd.models.validation`), scaled
+to metres (OSGD models to a length drawn from the category's real-size range
+with an rng seeded from the pipeline seed and the item id, so adding a model
+never changes the others), decomposed into convex parts (cached,
+:mod:`osgd.models.decomposition`) and given mass properties and friction
+(:mod:`osgd.models.mass`, :mod:`osgd.models.categories`).
+
+A model whose mesh is unusable (empty, flat, far off scale...) gives a note
+and an empty shard; a mistake in what a person wrote (a missing or invalid
+sidecar, a malformed annotation file, a source file changed since planning)
+fails its item with a message naming the file.
+"""
 
 from __future__ import annotations
 
+import collections
+import hashlib
+import json
+import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
 
+import numpy as np
 import pyarrow as pa
+import trimesh
+from pydantic import Field
 
-from osgd.stage import PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardStore
+from osgd.models import decomposition, osgd_import, procedural, user
+from osgd.models.categories import category_properties, draw_length
+from osgd.models.mass import compound_mass_properties, mesh_mass_properties
+from osgd.models.osgd_import import AnnotatedPair
+from osgd.models.validation import ModelRejected, check_length, check_mesh
+from osgd.schemas import MODELS, empty_table
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_notes
+from osgd.store import ShardRecord, ShardStore, file_sha256
+from osgd.taxonomy import CATEGORIES
+
+log = logging.getLogger(__name__)
+
+Source = Literal["procedural", "osgd", "user"]
 
 
 class ModelsStageParams(StageParams):
-    """Parameters of the models stage."""
+    """Parameters of the models stage (the ``[models]`` section of a pipeline config)."""
+
+    sources: list[Source] = Field(
+        default=["procedural"], description="Model sources to use, any of procedural, osgd, user."
+    )
+    procedural_per_category: int = Field(
+        default=10, ge=0, le=1000, description="Procedural variants per category (the paper used 10 per category)."
+    )
+    osgd_dir: str | None = Field(
+        default=None,
+        json_schema_extra={"location": True},
+        description="Folder in the OSGD layout (<name>/model/model_normalized.obj); empty: none.",
+    )
+    user_dir: str | None = Field(
+        default=None,
+        json_schema_extra={"location": True},
+        description="Folder of users' meshes, each with a <stem>.toml sidecar; empty: none.",
+    )
+    decomposition: Literal["auto", "fast", "thin", "fine", "hull"] = Field(
+        default="auto", description="Convex decomposition preset (osgd.models.decomposition); auto: per category."
+    )
+
+
+@dataclass(frozen=True)
+class ModelWorkItem(WorkItem):
+    """A work item that also knows where its source files are.
+
+    ``source_path`` is a location, left out of the shard key (only
+    ``item_id``, ``payload`` and ``inputs`` enter it): the payload holds the
+    sha256 of every file read from there instead, and the build checks them.
+    """
+
+    source_path: str = ""
+
+
+def item_rng(seed: int, item_id: str) -> np.random.Generator:
+    """The random generator of one model, from the pipeline seed and the item id only."""
+    digest = hashlib.sha256(f"{seed}/{item_id}".encode()).digest()
+    return np.random.default_rng([int.from_bytes(digest[index : index + 8], "little") for index in range(0, 32, 8)])
+
+
+def _hashes(paths: Sequence[Path], base: Path) -> dict[str, str]:
+    return {path.relative_to(base).as_posix(): file_sha256(path) for path in paths if path.is_file()}
+
+
+def _check_hashes(expected: Mapping[str, str], base: Path, item_id: str) -> None:
+    for relative, digest in expected.items():
+        path = base / relative
+        actual = file_sha256(path) if path.is_file() else "missing"
+        if actual != digest:
+            raise RuntimeError(f"{path}: changed since planning (item {item_id}); run the stage again")
+
+
+@dataclass
+class _SourceModel:
+    """What a source gives before the common steps: source units, source frame."""
+
+    name: str
+    category: str
+    mesh: trimesh.Trimesh
+    face_parts: np.ndarray | None
+    pairs: list[AnnotatedPair]
+    provenance: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    length: float | None = None  # real length wanted, m
+    scale: float | None = None  # or the scale given
 
 
 class ModelsStage(Stage):
@@ -23,12 +131,178 @@ class ModelsStage(Stage):
     inputs = ()
     Params = ModelsStageParams
     description = "Object models at real size with physical properties and convex parts."
-    implemented = False
 
-    def plan(
-        self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
-    ) -> list[WorkItem]:
-        return []
+    # -- planning ---------------------------------------------------------------------
+    def plan(self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]) -> list[WorkItem]:
+        assert isinstance(params, ModelsStageParams)
+        common = {"seed": int(seed), "decomposition": params.decomposition}
+        items: list[WorkItem] = []
+        if "procedural" in params.sources:
+            for category in CATEGORIES:
+                for index in range(params.procedural_per_category):
+                    payload = {**common, "source": "procedural", "category": category, "index": index}
+                    items.append(ModelWorkItem(f"procedural/{category}_{index:02d}", payload))
+        if "osgd" in params.sources and params.osgd_dir:
+            for folder in osgd_import.list_model_folders(Path(params.osgd_dir)):
+                payload = {
+                    **common,
+                    "source": "osgd",
+                    "category": osgd_import.category_from_folder(folder.name),
+                    "files": _hashes(osgd_import.source_files(folder), folder),
+                }
+                items.append(ModelWorkItem(f"osgd/{folder.name}", payload, source_path=str(folder)))
+        if "user" in params.sources and params.user_dir:
+            base = Path(params.user_dir)
+            for mesh_path in user.list_user_meshes(base):
+                sidecar = user.sidecar_path(mesh_path)
+                files = [mesh_path, sidecar, *user.grasp_file_paths(sidecar)]
+                payload = {**common, "source": "user", "mesh": mesh_path.name, "files": _hashes(files, base)}
+                items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
+        return items
 
-    def build(self, item: WorkItem, store: ShardStore) -> pa.Table:
-        raise NotImplementedError("the models stage is not implemented yet (issue #3)")
+    # -- building ---------------------------------------------------------------------
+    def _read_source(self, item: WorkItem) -> _SourceModel:
+        payload = item.payload
+        source = payload["source"]
+        rng = item_rng(payload["seed"], item.item_id)
+        if source == "procedural":
+            generated = procedural.generate(payload["category"], rng)
+            return _SourceModel(
+                item.item_id,
+                payload["category"],
+                generated.mesh,
+                generated.face_parts,
+                [],
+                {
+                    "generator": "osgd.models.procedural",
+                    "category": payload["category"],
+                    "index": payload["index"],
+                    "parameters": generated.parameters,
+                },
+                scale=1.0,
+            )
+        location = Path(getattr(item, "source_path", ""))
+        _check_hashes(payload["files"], location, item.item_id)
+        if source == "osgd":
+            model = osgd_import.load_osgd_model(location)
+            return _SourceModel(
+                model.name,
+                model.category,
+                model.mesh,
+                None,
+                model.pairs,
+                {"path": f"{location.name}/{osgd_import.MESH_PATH.as_posix()}", "files": payload["files"]},
+                notes=model.notes,
+                length=draw_length(model.category, rng),
+            )
+        if source == "user":
+            mesh_path = location / payload["mesh"]
+            sidecar_file = user.sidecar_path(mesh_path)
+            sidecar = user.read_sidecar(sidecar_file)
+            try:
+                mesh, groups = user.load_user_mesh(mesh_path)
+            except ValueError as error:
+                raise ModelRejected(str(error)) from error
+            face_parts = user.face_parts_from_regions(mesh, sidecar, groups, str(sidecar_file))
+            pairs, notes = user.read_grasp_files(sidecar, location)
+            return _SourceModel(
+                mesh_path.stem,
+                sidecar.category,
+                mesh,
+                face_parts,
+                pairs,
+                {
+                    "path": mesh_path.name,
+                    "sidecar": sidecar.model_dump(mode="json", exclude_none=True),
+                    "files": payload["files"],
+                },
+                notes=notes,
+                length=sidecar.length,
+                scale=sidecar.scale,
+            )
+        raise ValueError(f"item {item.item_id}: unknown source {source!r}")
+
+    def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
+        try:
+            model = self._read_source(item)
+            row, notes = self._finish(model, item, store)
+        except ModelRejected as error:
+            return BuildResult(empty_table("models"), [f"skipped: {error}"])
+        return BuildResult(pa.Table.from_pylist([row], schema=MODELS), notes)
+
+    def _finish(self, model: _SourceModel, item: WorkItem, store: ShardStore) -> tuple[dict[str, Any], list[str]]:
+        checked = check_mesh(model.mesh, model.face_parts, name=item.item_id)
+        notes = [*model.notes, *checked.notes]
+        mesh = checked.mesh
+        length_before = float(mesh.extents.max())
+        scale = model.scale if model.scale is not None else float(model.length) / length_before
+        mesh.apply_scale(scale)
+        length = float(mesh.extents.max())
+        check_length(length, model.category, name=item.item_id)
+        pairs = [pair.scaled(scale) for pair in model.pairs]
+
+        preset = decomposition.resolve_preset(item.payload["decomposition"], model.category)
+        compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, store.root / "cache" / "decompositions")
+        notes += compound.notes
+        properties = category_properties(model.category)
+        if checked.is_closed:
+            mass = mesh_mass_properties(mesh, properties.density)
+        else:
+            mass = compound_mass_properties(
+                [trimesh.Trimesh(v, f, process=False) for v, f in compound.parts], properties.density
+            )
+
+        vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+        faces = np.ascontiguousarray(mesh.faces, dtype=np.int32)
+        model_id = hashlib.sha256(vertices.tobytes() + faces.tobytes() + model.category.encode()).hexdigest()[:16]
+        provenance = {
+            **model.provenance,
+            "source": item.payload["source"],
+            "item": item.item_id,
+            "mass_from": mass.source,
+            "volume": mass.volume,
+            "notes": notes,
+        }
+        row = {
+            "model_id": model_id,
+            "name": model.name if item.payload["source"] == "osgd" else item.item_id,
+            "category": model.category,
+            "source": item.payload["source"],
+            "scale": float(scale),
+            "length": length,
+            "vertices": vertices.tolist(),
+            "faces": faces.tolist(),
+            "face_parts": checked.face_parts.astype(int).tolist(),
+            "convex_parts": [{"vertices": v.tolist(), "faces": f.astype(np.int32).tolist()} for v, f in compound.parts],
+            "decomposition": decomposition.description_json(compound.description),
+            "density": properties.density,
+            "mass": mass.mass,
+            "center_of_mass": mass.center_of_mass.tolist(),
+            "inertia": mass.inertia.reshape(-1).tolist(),
+            "friction": list(properties.friction),
+            "annotated_pairs": [pair.as_row() for pair in pairs],
+            "provenance": json.dumps(provenance, sort_keys=True),
+        }
+        return row, notes
+
+    # -- reporting --------------------------------------------------------------------
+    def summary(self, store: ShardStore, records: Sequence[ShardRecord]) -> str:
+        """Models per category and source, and how many items were skipped or noted."""
+        counts: dict[tuple[str, str], int] = collections.Counter()
+        skipped = noted = 0
+        for record in records:
+            noted += bool(read_notes(store, "models", record.key))
+            if record.rows == 0:
+                skipped += 1
+                continue
+            table = store.read("models", record.key, columns=["category", "source"])
+            for category, source in zip(table["category"].to_pylist(), table["source"].to_pylist(), strict=True):
+                counts[(category, source)] += 1
+        sources = sorted({source for _, source in counts})
+        lines = ["models per category: " + ", ".join(sources)]
+        for category in CATEGORIES:
+            row = [counts.get((category, source), 0) for source in sources]
+            if any(row):
+                lines.append(f"  {category:<12}" + "".join(f"{count:>6}" for count in row))
+        lines.append(f"  total {sum(counts.values())} models; {skipped} skipped; {noted} with notes")
+        return "\n".join(lines)

@@ -1,0 +1,318 @@
+"""Users' own meshes: any mesh trimesh reads plus a small TOML sidecar.
+
+For ``<user dir>/drill.stl`` the sidecar is ``<user dir>/drill.toml``::
+
+    category = "screwdriver"
+    length = 0.25            # real longest extent, m  (or: scale = 0.001)
+    default_part = "handle"  # faces no region claims; omit for unknown
+
+    [[parts]]                # later regions win over earlier ones
+    part = "shaft"
+    box = { min = [0.0, -10.0, -10.0], max = [150.0, 10.0, 10.0] }
+
+    [[parts]]
+    part = "tip"
+    half_space = { point = [140.0, 0.0, 0.0], normal = [1.0, 0.0, 0.0] }
+
+    [[parts]]
+    part = "handle"
+    groups = ["grip"]        # OBJ groups / objects
+
+    [[grasps]]               # optional contact pairs in the OSGD .npy form
+    file = "drill_screw.npy"
+    task = "screw"           # default: from the file stem (hand_over.npy -> hand over)
+    frame = "model"          # "model" (the mesh's own axes) or "blender" (OSGD's Z-up files)
+
+Regions and grasp points are in the mesh's own frame and units; a face
+belongs to a region when its centroid does. See ``docs/models.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import trimesh
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from osgd.models.osgd_import import AnnotatedPair, blender_to_obj
+from osgd.taxonomy import CATEGORIES, PART_INDEX, PARTS, TASKS, UNKNOWN_PART, task_from_file_stem
+
+#: File name endings read as users' meshes.
+MESH_SUFFIXES: tuple[str, ...] = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
+
+
+class SidecarError(ValueError):
+    """A sidecar that cannot be used; the message names the file and the problem."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Box(_Strict):
+    """An axis-aligned box, mesh frame and units."""
+
+    min: tuple[float, float, float]
+    max: tuple[float, float, float]
+
+
+class HalfSpace(_Strict):
+    """Points p with (p - point) . normal >= 0, mesh frame and units."""
+
+    point: tuple[float, float, float]
+    normal: tuple[float, float, float]
+
+
+class PartRegion(_Strict):
+    """One part given as exactly one of a box, a half-space or OBJ groups."""
+
+    part: str
+    box: Box | None = None
+    half_space: HalfSpace | None = None
+    groups: list[str] | None = None
+
+    @field_validator("part")
+    @classmethod
+    def _known_part(cls, value: str) -> str:
+        if value not in PART_INDEX:
+            raise ValueError(f"unknown part {value!r}; expected one of {list(PARTS)}")
+        return value
+
+    @model_validator(mode="after")
+    def _one_region(self) -> PartRegion:
+        given = [name for name in ("box", "half_space", "groups") if getattr(self, name) is not None]
+        if len(given) != 1:
+            raise ValueError(f"part {self.part!r} needs exactly one of box, half_space, groups (got {given})")
+        return self
+
+
+class GraspFile(_Strict):
+    """A contact-pair file in the OSGD .npy form, relative to the sidecar."""
+
+    file: str
+    task: str | None = None
+    frame: Literal["model", "blender"] = "model"
+
+    @field_validator("task")
+    @classmethod
+    def _known_task(cls, value: str | None) -> str | None:
+        if value is not None and value not in TASKS:
+            raise ValueError(f"unknown task {value!r}; expected one of {list(TASKS)}")
+        return value
+
+
+class Sidecar(_Strict):
+    """The contents of a sidecar file."""
+
+    category: str
+    length: float | None = Field(default=None, gt=0, description="real longest extent, m")
+    scale: float | None = Field(default=None, gt=0, description="mesh units to metres")
+    default_part: str | None = None
+    parts: list[PartRegion] = Field(default_factory=list)
+    grasps: list[GraspFile] = Field(default_factory=list)
+
+    @field_validator("category")
+    @classmethod
+    def _known_category(cls, value: str) -> str:
+        if value not in CATEGORIES:
+            raise ValueError(f"unknown category {value!r}; expected one of {list(CATEGORIES)}")
+        return value
+
+    @field_validator("default_part")
+    @classmethod
+    def _known_default(cls, value: str | None) -> str | None:
+        if value is not None and value not in PART_INDEX:
+            raise ValueError(f"unknown part {value!r}; expected one of {list(PARTS)}")
+        return value
+
+    @model_validator(mode="after")
+    def _size_given_once(self) -> Sidecar:
+        if (self.length is None) == (self.scale is None):
+            raise ValueError("give exactly one of length (real longest extent, m) and scale (mesh units to metres)")
+        return self
+
+
+def sidecar_path(mesh_path: Path) -> Path:
+    """``<dir>/<stem>.toml`` for ``<dir>/<stem>.<ext>``."""
+    return Path(mesh_path).with_suffix(".toml")
+
+
+def list_user_meshes(user_dir: Path) -> list[Path]:
+    """Mesh files directly in ``user_dir``, sorted by name.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the folder does not exist.
+    """
+    user_dir = Path(user_dir)
+    if not user_dir.is_dir():
+        raise FileNotFoundError(f"{user_dir}: users' models dir does not exist")
+    return sorted(path for path in user_dir.iterdir() if path.is_file() and path.suffix.lower() in MESH_SUFFIXES)
+
+
+def parse_sidecar(text: str, origin: str = "<sidecar>") -> Sidecar:
+    """Read a sidecar's TOML text.
+
+    Raises
+    ------
+    SidecarError
+    """
+    try:
+        document = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise SidecarError(f"{origin}: not valid TOML: {error}") from error
+    try:
+        return Sidecar(**document)
+    except ValidationError as error:
+        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or '(top)'}: {e['msg']}" for e in error.errors())
+        raise SidecarError(f"{origin}: {problems}") from error
+
+
+def read_sidecar(path: Path) -> Sidecar:
+    """Read a sidecar file.
+
+    Raises
+    ------
+    FileNotFoundError, SidecarError
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{path}: no sidecar; every user mesh needs one naming at least its category "
+            "and length (see docs/models.md)"
+        )
+    return parse_sidecar(path.read_text(), str(path))
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{key} = {_toml_value(item)}" for key, item in value.items()) + " }"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, int):
+        return str(value)
+    return json.dumps(str(value))
+
+
+def sidecar_to_toml(sidecar: Sidecar) -> str:
+    """The TOML text of a sidecar; :func:`parse_sidecar` reads it back equal."""
+    data = sidecar.model_dump(mode="json", exclude_none=True)
+    lines = [
+        f"{key} = {_toml_value(data[key])}" for key in ("category", "length", "scale", "default_part") if key in data
+    ]
+    for table in ("parts", "grasps"):
+        for entry in data.get(table, []):
+            lines.append(f"\n[[{table}]]")
+            lines.extend(f"{key} = {_toml_value(value)}" for key, value in entry.items())
+    return "\n".join(lines) + "\n"
+
+
+def _load_with_groups(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.ndarray]]:
+    """The mesh as one Trimesh, and the face indices of each named group/object."""
+    loaded = trimesh.load(mesh_path, process=False, skip_materials=True)
+    if isinstance(loaded, trimesh.Trimesh):
+        return loaded, {}
+    if not isinstance(loaded, trimesh.Scene) or not loaded.geometry:
+        raise ValueError(f"{mesh_path}: trimesh read no triangle mesh from it")
+    meshes, groups, start = [], {}, 0
+    for name, geometry in loaded.geometry.items():
+        if not isinstance(geometry, trimesh.Trimesh):
+            continue
+        meshes.append(geometry)
+        groups[name] = np.arange(start, start + len(geometry.faces))
+        start += len(geometry.faces)
+    if not meshes:
+        raise ValueError(f"{mesh_path}: trimesh read no triangle mesh from it")
+    return trimesh.util.concatenate(meshes), groups
+
+
+def face_parts_from_regions(
+    mesh: trimesh.Trimesh, sidecar: Sidecar, groups: dict[str, np.ndarray], origin: str = "<sidecar>"
+) -> np.ndarray:
+    """The part of each face from the sidecar's regions (later regions win).
+
+    Returns
+    -------
+    (F,) int8
+
+    Raises
+    ------
+    SidecarError
+        For a group the mesh does not have.
+    """
+    default = PART_INDEX[sidecar.default_part] if sidecar.default_part else UNKNOWN_PART
+    parts = np.full(len(mesh.faces), default, dtype=np.int8)
+    centres = mesh.triangles_center
+    for region in sidecar.parts:
+        if region.box is not None:
+            inside = np.all((centres >= region.box.min) & (centres <= region.box.max), axis=1)
+        elif region.half_space is not None:
+            inside = (centres - np.asarray(region.half_space.point)) @ np.asarray(region.half_space.normal) >= 0
+        else:
+            inside = np.zeros(len(parts), dtype=bool)
+            for group in region.groups or []:
+                if group not in groups:
+                    raise SidecarError(
+                        f"{origin}: part {region.part!r} names group {group!r}, but the mesh has "
+                        f"{sorted(groups) or 'no groups'}"
+                    )
+                inside[groups[group]] = True
+        parts[inside] = PART_INDEX[region.part]
+    return parts
+
+
+def read_grasp_files(sidecar: Sidecar, base_dir: Path) -> tuple[list[AnnotatedPair], list[str]]:
+    """The sidecar's contact pairs, in the mesh's frame and units.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+    """
+    pairs: list[AnnotatedPair] = []
+    notes: list[str] = []
+    for entry in sidecar.grasps:
+        path = base_dir / entry.file
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: grasp file named in the sidecar does not exist")
+        points = np.load(path, allow_pickle=False)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"{path}: expected an (N, 3) array of finger positions, got shape {points.shape}")
+        if len(points) % 2:
+            notes.append(f"{entry.file}: odd number of points ({len(points)}); dropped the last")
+            points = points[:-1]
+        task = entry.task or task_from_file_stem(path.stem)
+        points = blender_to_obj(points) if entry.frame == "blender" else np.asarray(points, np.float64)
+        pairs.extend(AnnotatedPair(task, pair[0], pair[1], entry.file) for pair in points.reshape(-1, 2, 3))
+    return pairs, notes
+
+
+def grasp_file_paths(sidecar_file: Path) -> list[Path]:
+    """The grasp files a sidecar names (empty when it does not parse: the build reports that)."""
+    try:
+        sidecar = read_sidecar(sidecar_file)
+    except (FileNotFoundError, SidecarError):
+        return []
+    return [sidecar_file.parent / entry.file for entry in sidecar.grasps]
+
+
+def load_user_mesh(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.ndarray]]:
+    """A user's mesh and its named groups.
+
+    Raises
+    ------
+    ValueError
+        If trimesh reads no triangle mesh from the file.
+    """
+    try:
+        return _load_with_groups(Path(mesh_path))
+    except (ValueError, IndexError, KeyError, OSError) as error:
+        raise ValueError(f"{mesh_path}: trimesh cannot read it ({error})") from error
