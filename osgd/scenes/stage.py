@@ -1,4 +1,10 @@
-"""The scenes stage (not implemented yet: issue #6)."""
+"""The scenes stage: piles of 3-6 objects dropped in pybullet until at rest.
+
+Plan: ``count`` scenes in shards of ``scenes_per_shard`` (``scenes_000``,
+``scenes_001``, ...), each shard reading every ``models`` shard. A scene's
+random draws depend on the pipeline seed, its index and the attempt only
+(:func:`osgd.scenes.drop.attempt_seed`), so the shard size changes no scene.
+"""
 
 from __future__ import annotations
 
@@ -6,29 +12,61 @@ from collections.abc import Mapping, Sequence
 
 import pyarrow as pa
 
-from osgd.stage import PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardStore
-
-
-class ScenesStageParams(StageParams):
-    """Parameters of the scenes stage."""
+from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene
+from osgd.scenes.params import ScenesStageParams
+from osgd.schemas import SCENES
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.store import ShardRecord, ShardStore
 
 
 class ScenesStage(Stage):
-    """Stacks of 3-6 objects dropped in pybullet."""
+    """Piles of 3-6 objects dropped in pybullet until they come to rest."""
 
     name = "scenes"
     table = "scenes"
     version = 1
-    inputs = ('models',)
+    inputs = ("models",)
     Params = ScenesStageParams
-    description = "Stacks of 3-6 objects dropped in pybullet."
-    implemented = False
+    description = "Piles of 3-6 objects dropped from 30 cm in pybullet until they come to rest."
 
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
     ) -> list[WorkItem]:
-        return []
+        assert isinstance(params, ScenesStageParams)
+        model_keys = tuple(sorted(shard.key for shard in upstream.get("models", ())))
+        shards = -(-params.count // params.scenes_per_shard)
+        digits = max(3, len(str(max(shards - 1, 0))))
+        items = []
+        for shard in range(shards):
+            first = shard * params.scenes_per_shard
+            last = min(params.count, first + params.scenes_per_shard)
+            payload = {"params": params.key_dict(), "seed": seed, "first_scene": first, "scene_count": last - first}
+            items.append(WorkItem(f"scenes_{shard:0{digits}d}", payload, {"models": model_keys}))
+        return items
 
-    def build(self, item: WorkItem, store: ShardStore) -> pa.Table:
-        raise NotImplementedError("the scenes stage is not implemented yet (issue #6)")
+    def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
+        params = ScenesStageParams(**item.payload["params"])
+        models = store.read_many("models", item.inputs["models"], MODEL_COLUMNS)
+        if models.num_rows == 0:
+            raise ValueError(
+                f"{item.item_id}: the models table ({len(item.inputs['models'])} shard(s) under "
+                f"{store.root / 'models'}) has no rows, so no scene can be drawn"
+            )
+        pool = ModelPool(models.to_pylist())
+        rows, notes = [], []
+        first = int(item.payload["first_scene"])
+        for scene_index in range(first, first + int(item.payload["scene_count"])):
+            result = generate_scene(pool, params, int(item.payload["seed"]), scene_index)
+            if result.row is None:
+                reasons = ", ".join(f"{reason} {count}" for reason, count in sorted(result.rejections.items()))
+                notes.append(f"scene {scene_index} left out: all {params.max_attempts} attempts rejected ({reasons})")
+                continue
+            rows.append(result.row)
+        return BuildResult(pa.Table.from_pylist(rows, schema=SCENES), notes)
+
+    def summary(self, store: ShardStore, records: Sequence[ShardRecord]) -> str:
+        """Objects per scene, contacts, top-down overlap and occlusion, rejections."""
+        from osgd.scenes.statistics import format_statistics, stacking_statistics  # noqa: PLC0415
+
+        summary, simulation = stacking_statistics(store, records)
+        return format_statistics(summary, simulation)

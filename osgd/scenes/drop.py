@@ -1,0 +1,394 @@
+"""Dropping a pile of objects in pybullet until it comes to rest.
+
+One scene is drawn and simulated per *attempt*: its random draws come from a
+generator seeded by :func:`attempt_seed` (pipeline seed, scene index,
+attempt) only, so any scene can be rebuilt alone, whatever shard it is in.
+An attempt whose simulation goes wrong is rejected with a reason and the
+scene is redrawn with the next attempt's seed.
+
+World frame (``docs/scenes.md``): z up, the floor is the plane z = 0, the
+walled area is a square of side ``area_size`` (1 m, paper section IV-A)
+centred on the origin. Poses are of each model's *mesh frame* (the frame of
+the ``models`` row's vertices), through :mod:`osgd.physics`.
+
+The drop: objects are released one after another, ``release_interval``
+apart, each at a uniformly random orientation, its box centre at
+``drop_height`` (30 cm, paper section IV-A) above a point drawn in a small
+disc around the pile centre, raised when needed to clear what is already
+there. Releasing them into the same small disc is what makes them land on
+each other (REFERENCE section 2: the original generator dropped all objects
+from one point).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pybullet
+from scipy.spatial.transform import Rotation
+
+from osgd.physics import ObjectBody, create_object_body, get_mesh_pose, physics_client
+from osgd.scenes.params import ScenesStageParams
+
+log = logging.getLogger(__name__)
+
+#: Why an attempt was rejected; the keys of the ``rejections`` JSON column.
+REJECTION_REASONS: tuple[str, ...] = (
+    "blew_up",  # NaN or a speed above max_linear_speed / max_angular_speed
+    "left_area",  # an object's centre of mass crossed the walls' inner faces
+    "fell_through_floor",  # an object's centre of mass went below z = 0
+    "interpenetration",  # two bodies overlap deeper than penetration_tolerance after settling
+    "not_settled",  # max_sim_time ran out before every object was at rest
+)
+
+#: Columns of the ``models`` table the drop needs.
+MODEL_COLUMNS: tuple[str, ...] = (
+    "model_id", "name", "category", "convex_parts", "mass", "center_of_mass", "inertia", "friction",
+)
+
+_WALL_THICKNESS = 0.1
+
+
+def attempt_seed(pipeline_seed: int, scene_index: int, attempt: int) -> int:
+    """The seed of one attempt at one scene, in [0, 2**63).
+
+    Derived with :class:`numpy.random.SeedSequence` from the three numbers
+    only, so scenes do not depend on how they are split into shards.
+    """
+    entropy = [int(pipeline_seed) & 0xFFFF_FFFF_FFFF_FFFF, int(scene_index), int(attempt)]
+    state = np.random.SeedSequence(entropy).generate_state(1, dtype=np.uint64)[0]
+    return int(state >> np.uint64(1))
+
+
+class ModelPool:
+    """The models a scene can be drawn from, in a fixed order.
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        ``models`` rows (at least the :data:`MODEL_COLUMNS`).
+
+    Raises
+    ------
+    ValueError
+        If there are no rows.
+    """
+
+    def __init__(self, rows: Sequence[Mapping[str, Any]]) -> None:
+        if not rows:
+            raise ValueError("the models table has no rows: no scene can be drawn (did every model get rejected?)")
+        # Sorted by content hash, so the pool does not depend on shard order.
+        self.rows: list[Mapping[str, Any]] = sorted(rows, key=lambda row: str(row["model_id"]))
+        self.categories: list[str] = sorted({str(row["category"]) for row in self.rows})
+        self.by_category: dict[str, list[int]] = {
+            category: [index for index, row in enumerate(self.rows) if row["category"] == category]
+            for category in self.categories
+        }
+        self._hull_points: dict[int, np.ndarray] = {}
+
+    def hull_points(self, index: int) -> np.ndarray:
+        """Every convex-part vertex of a model, (V, 3) float64, mesh frame, metres."""
+        if index not in self._hull_points:
+            parts = self.rows[index]["convex_parts"]
+            self._hull_points[index] = np.concatenate(
+                [np.asarray(part["vertices"], dtype=np.float64).reshape(-1, 3) for part in parts]
+            )
+        return self._hull_points[index]
+
+
+@dataclass(frozen=True)
+class Release:
+    """One object of a drawn scene, before the simulation.
+
+    Attributes
+    ----------
+    model_index : int
+        Index into :attr:`ModelPool.rows`.
+    quaternion : (4,) float64
+        Mesh-frame orientation at release, (x, y, z, w).
+    xy : (2,) float64
+        Where the centre of its box is released, world frame, metres.
+    """
+
+    model_index: int
+    quaternion: np.ndarray
+    xy: np.ndarray
+
+
+def draw_releases(rng: np.random.Generator, pool: ModelPool, params: ScenesStageParams) -> list[Release]:
+    """Draw the models, orientations and release points of one scene."""
+    count = int(rng.integers(params.min_objects, params.max_objects + 1))
+    chosen: list[int] = []
+    if params.balance == "category":
+        weights = np.array([params.category_weights.get(name, 1.0) for name in pool.categories], dtype=np.float64)
+        if weights.sum() <= 0:
+            raise ValueError(f"category_weights give every available category {pool.categories} zero weight")
+        weights /= weights.sum()
+    for _ in range(count):
+        if params.balance == "category":
+            category = pool.categories[int(rng.choice(len(pool.categories), p=weights))]
+            candidates = pool.by_category[category]
+        else:
+            candidates = list(range(len(pool.rows)))
+        if params.distinct_models:
+            unused = [index for index in candidates if index not in chosen]
+            candidates = unused or candidates
+        chosen.append(candidates[int(rng.integers(len(candidates)))])
+    centre_radius = params.pile_center_radius * math.sqrt(rng.uniform())
+    centre_angle = rng.uniform(0.0, 2 * math.pi)
+    centre = centre_radius * np.array([math.cos(centre_angle), math.sin(centre_angle)])
+    releases = []
+    for model_index in chosen:
+        quaternion = Rotation.random(random_state=rng).as_quat()
+        radius = params.drop_radius * math.sqrt(rng.uniform())
+        angle = rng.uniform(0.0, 2 * math.pi)
+        xy = centre + radius * np.array([math.cos(angle), math.sin(angle)])
+        releases.append(Release(model_index, quaternion, xy))
+    return releases
+
+
+@dataclass
+class DropOutcome:
+    """What one simulated attempt gave.
+
+    Attributes
+    ----------
+    reason : str
+        ``""`` when accepted, else one of :data:`REJECTION_REASONS`.
+    positions : (N, 3) float64
+        Final mesh-frame origins, world frame, metres.
+    quaternions : (N, 4) float64
+        Final mesh-frame orientations, (x, y, z, w).
+    settled : bool
+    sim_time : float
+        Simulated seconds.
+    sim_steps : int
+    detail : str
+        What exactly went wrong (for logs).
+    """
+
+    reason: str
+    positions: np.ndarray
+    quaternions: np.ndarray
+    settled: bool
+    sim_time: float
+    sim_steps: int
+    detail: str = ""
+
+
+def build_world(client: int, params: ScenesStageParams) -> list[int]:
+    """The floor plane at z = 0 and four walls around the area; returns body ids."""
+    lateral, rolling, spinning = params.floor_friction
+    plane = pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client)
+    bodies = [pybullet.createMultiBody(0, plane, physicsClientId=client)]
+    half = params.area_size / 2
+    length = params.area_size + 2 * _WALL_THICKNESS
+    for axis in (0, 1):
+        extents = [length / 2, length / 2, params.wall_height / 2]
+        extents[axis] = _WALL_THICKNESS / 2
+        shape = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=extents, physicsClientId=client)
+        for side in (-1.0, 1.0):
+            position = [0.0, 0.0, params.wall_height / 2]
+            position[axis] = side * (half + _WALL_THICKNESS / 2)
+            bodies.append(pybullet.createMultiBody(0, shape, basePosition=position, physicsClientId=client))
+    for body in bodies:
+        pybullet.changeDynamics(body, -1, lateralFriction=lateral, rollingFriction=rolling,
+                                spinningFriction=spinning, physicsClientId=client)
+    return bodies
+
+
+def _release(client: int, pool: ModelPool, release: Release, objects: list[ObjectBody],
+             params: ScenesStageParams) -> ObjectBody:
+    rotated = Rotation.from_quat(release.quaternion).apply(pool.hull_points(release.model_index))
+    low, high = rotated.min(axis=0), rotated.max(axis=0)
+    box_centre = (low + high) / 2
+    half_height = (high[2] - low[2]) / 2
+    top = max((pybullet.getAABB(body.body_id, physicsClientId=client)[1][2] for body in objects), default=0.0)
+    centre_z = max(params.drop_height, top + params.drop_clearance + half_height)
+    target = np.array([release.xy[0], release.xy[1], centre_z])
+    return create_object_body(client, pool.rows[release.model_index], target - box_centre, release.quaternion)
+
+
+def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesStageParams,
+                  initial_poses: Sequence[tuple[np.ndarray, np.ndarray]] | None = None) -> DropOutcome:
+    """Simulate one attempt in a fresh physics client and judge it.
+
+    Parameters
+    ----------
+    pool : ModelPool
+    releases : sequence of Release
+    params : ScenesStageParams
+    initial_poses : sequence of (position (3,), quaternion (4,)), optional
+        Place every object at these mesh-frame poses at time 0 instead of
+        releasing them one by one (to rebuild or test a given arrangement).
+
+    Returns
+    -------
+    DropOutcome
+    """
+    dt = params.timestep
+    half = params.area_size / 2
+    max_steps = math.ceil(params.max_sim_time / dt)
+    release_steps = [0] * len(releases) if initial_poses is not None else [
+        round(index * params.release_interval / dt) for index in range(len(releases))
+    ]
+    last_release = max(release_steps, default=0)
+    fixed_steps = math.ceil(params.fixed_sim_time / dt) if params.fixed_sim_time > 0 else 0
+    if fixed_steps:
+        max_steps = last_release + fixed_steps
+    with physics_client(timestep=dt) as client:
+        build_world(client, params)
+        objects: list[ObjectBody] = []
+        rest_run = 0
+        step = 0
+        reason = detail = ""
+        at_rest = False
+        while True:
+            while len(objects) < len(releases) and release_steps[len(objects)] <= step:
+                index = len(objects)
+                if initial_poses is not None:
+                    position, quaternion = initial_poses[index]
+                    objects.append(create_object_body(client, pool.rows[releases[index].model_index],
+                                                      np.asarray(position), np.asarray(quaternion)))
+                else:
+                    objects.append(_release(client, pool, releases[index], objects, params))
+            pybullet.stepSimulation(physicsClientId=client)
+            step += 1
+            at_rest = True
+            for body in objects:
+                linear, angular = pybullet.getBaseVelocity(body.body_id, physicsClientId=client)
+                position = pybullet.getBasePositionAndOrientation(body.body_id, physicsClientId=client)[0]
+                linear_speed, angular_speed = math.hypot(*linear), math.hypot(*angular)
+                if not (math.isfinite(linear_speed) and math.isfinite(angular_speed)
+                        and all(math.isfinite(value) for value in position)):
+                    reason, detail = "blew_up", f"{body.model_id}: non-finite state at step {step}"
+                elif linear_speed > params.max_linear_speed or angular_speed > params.max_angular_speed:
+                    reason = "blew_up"
+                    detail = f"{body.model_id}: {linear_speed:.2f} m/s, {angular_speed:.1f} rad/s at step {step}"
+                elif abs(position[0]) > half or abs(position[1]) > half:
+                    reason, detail = "left_area", f"{body.model_id}: at {np.round(position, 3)} at step {step}"
+                elif position[2] < 0.0:
+                    reason, detail = "fell_through_floor", f"{body.model_id}: z = {position[2]:.3f} at step {step}"
+                if reason:
+                    break
+                at_rest &= linear_speed < params.rest_linear_speed and angular_speed < params.rest_angular_speed
+            if reason:
+                break
+            if len(objects) == len(releases) and step > last_release:
+                rest_run = rest_run + 1 if at_rest else 0
+                if fixed_steps == 0 and rest_run >= params.rest_steps:
+                    break
+            if step >= max_steps:
+                break
+        settled = (rest_run >= params.rest_steps) if fixed_steps == 0 else at_rest
+        if not reason and not settled and params.reject_unsettled:
+            reason, detail = "not_settled", f"still moving after {step * dt:.2f} s"
+        if not reason:
+            depth, pair = deepest_penetration(client, [body.body_id for body in objects])
+            if depth > params.penetration_tolerance:
+                reason, detail = "interpenetration", f"bodies {pair} overlap by {depth * 1000:.1f} mm"
+        poses = [get_mesh_pose(body) for body in objects]
+    positions = np.array([pose[0] for pose in poses], dtype=np.float64).reshape(-1, 3)
+    quaternions = np.array([pose[1] for pose in poses], dtype=np.float64).reshape(-1, 4)
+    if reason:
+        log.debug("attempt rejected (%s): %s", reason, detail)
+    return DropOutcome(reason, positions, quaternions, settled, step * dt, step, detail)
+
+
+def deepest_penetration(client: int, object_ids: Sequence[int]) -> tuple[float, tuple[int, int]]:
+    """The deepest overlap of an object with anything, from current contacts.
+
+    Returns
+    -------
+    depth : float
+        Metres, >= 0 (0 when nothing overlaps).
+    pair : (int, int)
+        Body ids of the deepest pair ((-1, -1) when none).
+    """
+    deepest, pair = 0.0, (-1, -1)
+    objects = set(object_ids)
+    for contact in pybullet.getContactPoints(physicsClientId=client):
+        body_a, body_b, distance = contact[1], contact[2], contact[8]
+        if (body_a in objects or body_b in objects) and -distance > deepest:
+            deepest, pair = -distance, (body_a, body_b)
+    return deepest, pair
+
+
+@dataclass
+class SceneResult:
+    """The accepted attempt at one scene, or None of it after ``max_attempts``.
+
+    Attributes
+    ----------
+    row : dict or None
+        A ``scenes`` row, or None when every attempt was rejected.
+    rejections : Counter
+        Rejected attempts by reason.
+    """
+
+    row: dict[str, Any] | None
+    rejections: Counter = field(default_factory=Counter)
+
+
+DrawFunction = Callable[[np.random.Generator, ModelPool, ScenesStageParams], list[Release]]
+
+
+def generate_scene(pool: ModelPool, params: ScenesStageParams, pipeline_seed: int, scene_index: int,
+                   draw: DrawFunction = draw_releases) -> SceneResult:
+    """Draw and drop one scene, redrawing rejected attempts.
+
+    Parameters
+    ----------
+    pool : ModelPool
+    params : ScenesStageParams
+    pipeline_seed : int
+    scene_index : int
+    draw : callable(rng, pool, params) -> list of Release
+        How an attempt's objects are drawn (:func:`draw_releases`).
+
+    Returns
+    -------
+    SceneResult
+    """
+    rejections: Counter = Counter()
+    for attempt in range(params.max_attempts):
+        seed = attempt_seed(pipeline_seed, scene_index, attempt)
+        releases = draw(np.random.default_rng(seed), pool, params)
+        outcome = simulate_drop(pool, releases, params)
+        if outcome.reason:
+            rejections[outcome.reason] += 1
+            continue
+        objects = [
+            {
+                "model_id": str(pool.rows[release.model_index]["model_id"]),
+                "category": str(pool.rows[release.model_index]["category"]),
+                "position": position.tolist(),
+                "quaternion": quaternion.tolist(),
+            }
+            for release, position, quaternion in zip(releases, outcome.positions, outcome.quaternions, strict=True)
+        ]
+        row = {
+            "scene_id": scene_id(scene_index),
+            "scene_index": scene_index,
+            "seed": seed,
+            "attempts": attempt + 1,
+            "rejections": json.dumps(dict(sorted(rejections.items())), separators=(",", ":")),
+            "objects": objects,
+            "settled": outcome.settled,
+            "sim_time": outcome.sim_time,
+            "sim_steps": outcome.sim_steps,
+        }
+        return SceneResult(row, rejections)
+    return SceneResult(None, rejections)
+
+
+def scene_id(scene_index: int) -> str:
+    """``scene_000042`` for index 42."""
+    return f"scene_{scene_index:06d}"

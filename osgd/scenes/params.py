@@ -1,0 +1,101 @@
+"""The scenes stage's parameters: the ``[scenes]`` section of a pipeline config.
+
+Lengths in metres, times in seconds (simulated, never wall-clock), speeds in
+m/s and rad/s. The world frame is described in ``docs/scenes.md``: z up, the
+floor at z = 0, the workbench (and the 1 m x 1 m walled area) centred on the
+origin.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from osgd.stage import StageParams
+from osgd.taxonomy import CATEGORIES
+
+
+class ScenesStageParams(StageParams):
+    """Parameters of the scenes stage."""
+
+    count: int = Field(1000, ge=0, description="scenes in all (the paper renders 8000 depth maps)")
+    scenes_per_shard: int = Field(25, ge=1, description="scenes per shard; changing it changes no scene")
+    min_objects: int = Field(3, ge=1, description="fewest objects in a scene (paper: 3)")
+    max_objects: int = Field(6, ge=1, description="most objects in a scene (paper: 6)")
+    balance: Literal["category", "model"] = Field(
+        "category",
+        description="'category': draw a category (by category_weights), then one of its models uniformly; "
+        "'model': every model equally likely",
+    )
+    category_weights: dict[str, float] = Field(
+        default_factory=dict,
+        description="relative weight per category under balance='category'; unlisted categories weigh 1",
+    )
+    distinct_models: bool = Field(
+        True, description="no model twice in one scene while the scene's categories still have unused models"
+    )
+    drop_height: float = Field(
+        0.30, gt=0.0, description="height of each object's box centre above the floor at release (paper: 30 cm)"
+    )
+    drop_clearance: float = Field(
+        0.01, ge=0.0, description="a released object starts at least this far above everything already there"
+    )
+    drop_radius: float = Field(
+        0.05, ge=0.0,
+        description="objects are released uniformly in a disc of this radius around the pile centre; small, "
+        "so that they land on each other",
+    )
+    pile_center_radius: float = Field(
+        0.10, ge=0.0, description="the pile centre is drawn uniformly in a disc of this radius around the origin"
+    )
+    release_interval: float = Field(
+        0.20, ge=0.0, description="simulated time between two releases (free fall from 30 cm takes 0.25 s)"
+    )
+    area_size: float = Field(1.0, gt=0.1, description="side of the square area bounded by walls (paper: 1 m)")
+    wall_height: float = Field(0.5, gt=0.0, description="height of the walls")
+    floor_friction: tuple[float, float, float] = Field(
+        (0.8, 0.01, 0.01),
+        description="lateral, rolling, spinning friction of the floor and walls (rolling and spinning 0.01 let "
+        "piles settle: REFERENCE section 8)",
+    )
+    timestep: float = Field(1.0 / 240.0, gt=0.0, le=0.1, description="simulated seconds per step (pybullet's 1/240)")
+    rest_linear_speed: float = Field(
+        0.005, gt=0.0, description="an object is at rest below this linear speed ..."
+    )
+    rest_angular_speed: float = Field(0.05, gt=0.0, description="... and below this angular speed, rad/s ...")
+    rest_steps: int = Field(
+        30, ge=1, description="... and a scene is settled when all its objects stay at rest this many steps"
+    )
+    max_sim_time: float = Field(
+        8.0, gt=0.0, description="cap on simulated time per attempt, after which the attempt counts unsettled"
+    )
+    fixed_sim_time: float = Field(
+        0.0, ge=0.0,
+        description="if > 0, simulate exactly this long after the last release and ignore the rest test "
+        "(the original generator ran a fixed 3 s); 0 stops at rest",
+    )
+    reject_unsettled: bool = Field(True, description="redraw attempts that hit max_sim_time before settling")
+    max_linear_speed: float = Field(
+        6.0, gt=0.0,
+        description="faster than this the simulation blew up (free fall from 0.5 m lands at about 3 m/s)",
+    )
+    max_angular_speed: float = Field(150.0, gt=0.0, description="spinning faster than this, rad/s, blew up too")
+    penetration_tolerance: float = Field(
+        0.005, ge=0.0, description="objects interpenetrating deeper than this after settling are rejected"
+    )
+    max_attempts: int = Field(
+        10, ge=1, description="attempts per scene; a scene that fails them all is left out with a note"
+    )
+
+    @model_validator(mode="after")
+    def _check_ranges(self) -> ScenesStageParams:
+        if self.max_objects < self.min_objects:
+            raise ValueError(f"max_objects ({self.max_objects}) is below min_objects ({self.min_objects})")
+        unknown = sorted(set(self.category_weights) - set(CATEGORIES))
+        if unknown:
+            raise ValueError(f"category_weights names unknown categories {unknown}; known: {list(CATEGORIES)}")
+        negative = {name: weight for name, weight in self.category_weights.items() if weight < 0}
+        if negative:
+            raise ValueError(f"category_weights must not be negative: {negative}")
+        return self
