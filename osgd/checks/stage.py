@@ -1,17 +1,47 @@
-"""The checks stage (not implemented yet: issue #5)."""
+"""The checks stage: every grasp tried in pybullet (issue #5).
+
+One work item per ``models`` shard, paired with the ``grasps`` shard of the
+same item id (the grasps stage plans exactly one per models shard); it
+writes one ``checks`` shard with one row per grasp. A models shard with no
+rows (a rejected model) has no grasps and gives an empty checks shard.
+
+The trial itself: :mod:`osgd.checks.trial`; the simulated hand:
+:mod:`osgd.checks.hand`; the parameters: :mod:`osgd.checks.params`; the
+acceptance summary: :mod:`osgd.checks.summary`. ``docs/checks.md`` explains
+the design and the evidence.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import logging
 from collections.abc import Mapping, Sequence
 
+import numpy as np
 import pyarrow as pa
 
-from osgd.stage import PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardStore
+from osgd.checks.params import ChecksStageParams
+from osgd.checks.summary import acceptance_counts, format_acceptance
+from osgd.checks.trial import TrialResult, run_trial
+from osgd.gripper import PANDA, Gripper
+from osgd.schemas import CHECKS, vectors_from_arrow
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.store import ShardRecord, ShardStore
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ChecksStage", "ChecksStageParams", "trial_seed"]
 
 
-class ChecksStageParams(StageParams):
-    """Parameters of the checks stage."""
+def trial_seed(seed: int, model_id: str, grasp_id: int) -> np.random.Generator:
+    """The random generator of one trial, from the pipeline seed and the grasp's identity.
+
+    Seeding per grasp (not per shard) keeps a trial's outcome independent of
+    which other grasps its model has.
+    """
+    model_number = int.from_bytes(hashlib.sha256(model_id.encode("utf-8")).digest()[:8], "little")
+    return np.random.default_rng([int(seed), model_number, int(grasp_id)])
 
 
 class ChecksStage(Stage):
@@ -19,16 +49,81 @@ class ChecksStage(Stage):
 
     name = "checks"
     table = "checks"
+    # Bump whenever the outcome of a trial for the same inputs changes.
     version = 1
-    inputs = ('models', 'grasps')
+    inputs = ("models", "grasps")
     Params = ChecksStageParams
     description = "Simulated grasp trials in pybullet."
-    implemented = False
+
+    def __init__(self) -> None:
+        # item id -> (models key, grasps key) of the last plan, so that
+        # summary() can find the shards its records were built from.
+        self._planned_inputs: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {}
 
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
     ) -> list[WorkItem]:
-        return []
+        """One item per models shard, paired with the grasps shard of the same item id.
 
-    def build(self, item: WorkItem, store: ShardStore) -> pa.Table:
-        raise NotImplementedError("the checks stage is not implemented yet (issue #5)")
+        The payload holds the parameters, the seed and the gripper's
+        dimensions, so a change to any of them gives new shard keys.
+
+        Raises
+        ------
+        ValueError
+            If a models shard has no grasps shard of the same item id.
+        """
+        assert isinstance(params, ChecksStageParams)
+        grasps_by_item = {shard.item.item_id: shard.key for shard in upstream.get("grasps", ())}
+        payload = {"params": params.key_dict(), "seed": int(seed), "gripper": dataclasses.asdict(PANDA)}
+        items = []
+        for shard in upstream.get("models", ()):
+            item_id = shard.item.item_id
+            if item_id not in grasps_by_item:
+                raise ValueError(
+                    f"checks: models item {item_id!r} has no grasps shard of the same item id; "
+                    "the grasps stage plans one per models shard"
+                )
+            inputs = {"models": (shard.key,), "grasps": (grasps_by_item[item_id],)}
+            items.append(WorkItem(item_id, payload, inputs))
+            self._planned_inputs[item_id] = (inputs["models"], inputs["grasps"])
+        return items
+
+    def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
+        """Try every grasp of every model of the item's shards, in grasp-id order."""
+        params = ChecksStageParams(**item.payload["params"])
+        gripper = Gripper(**item.payload["gripper"])
+        seed = int(item.payload["seed"])
+        models = store.read_many("models", item.inputs.get("models", ()))
+        grasps = store.read_many("grasps", item.inputs.get("grasps", ()))
+        model_rows = {row["model_id"]: row for row in models.to_pylist()}
+        notes: list[str] = []
+        grasp_model_ids = grasps.column("model_id").to_pylist()
+        unknown = sorted(set(grasp_model_ids) - set(model_rows))
+        if unknown:
+            notes.append(f"{len(unknown)} model ids of the grasps shard are not in the models shard; "
+                         f"their grasps are not checked: {unknown[:3]}")
+        positions = vectors_from_arrow(grasps.column("position"), 3)
+        quaternions = vectors_from_arrow(grasps.column("quaternion"), 4)
+        widths = grasps.column("width").to_numpy()
+        grasp_ids = grasps.column("grasp_id").to_pylist()
+        order = sorted(
+            (index for index, model_id in enumerate(grasp_model_ids) if model_id in model_rows),
+            key=lambda index: (grasp_model_ids[index], grasp_ids[index]),
+        )
+        rows: list[dict] = []
+        for index in order:
+            model_id, grasp_id = grasp_model_ids[index], int(grasp_ids[index])
+            result: TrialResult = run_trial(
+                model_rows[model_id], positions[index], quaternions[index], float(widths[index]),
+                params, gripper, trial_seed(seed, model_id, grasp_id),
+            )
+            rows.append({"model_id": model_id, "grasp_id": grasp_id, **dataclasses.asdict(result)})
+        stable = sum(row["stable"] for row in rows)
+        log.debug("checks %s: %d of %d grasps stable", item.item_id, stable, len(rows))
+        return BuildResult(pa.Table.from_pylist(rows, schema=CHECKS), notes)
+
+    def summary(self, store: ShardStore, records: list[ShardRecord]) -> str:
+        """Acceptance rate per category and per task, as text tables."""
+        grasps_keys = {item_id: inputs[1] for item_id, inputs in self._planned_inputs.items()}
+        return format_acceptance(acceptance_counts(store, records, grasps_keys))

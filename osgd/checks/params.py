@@ -1,0 +1,103 @@
+"""The checks stage's parameters: the ``[checks]`` section of a pipeline config.
+
+Every threshold and duration of the grasp trial (:mod:`osgd.checks.trial`)
+is here, with its default and where that default comes from; ``docs/checks.md``
+explains the trial they parameterise. Lengths in metres, angles in radians,
+times in seconds, forces in newtons.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from osgd.stage import StageParams
+
+
+class ChecksStageParams(StageParams):
+    """Parameters of the simulated grasp trial."""
+
+    # -- simulation --------------------------------------------------------
+    timestep: float = Field(
+        1.0 / 240.0, gt=0.0, le=0.02, description="seconds per physics step (pybullet's default 1/240 s)"
+    )
+    solver_iterations: int = Field(
+        30, ge=1, le=200,
+        description="constraint solver iterations per step (pybullet's default is 50; 30 holds the same grasps "
+        "faster, docs/checks.md)",
+    )
+    gravity: float = Field(9.81, ge=0.0, description="magnitude of gravity once the hand has closed, m/s^2")
+    # -- the hand ------------------------------------------------------------
+    finger_friction: float = Field(
+        1.0, gt=0.0, le=5.0,
+        description="lateral friction of the finger pads; pybullet multiplies it with the object's, so 1.0 "
+        "leaves the models table's friction in charge",
+    )
+    palm_mass: float = Field(0.5, gt=0.0, description="mass of the palm, kg")
+    finger_mass: float = Field(0.02, gt=0.0, description="mass of each finger, kg")
+    grip_force: float | None = Field(
+        None, gt=0.0,
+        description="force limit of each finger, N; None takes the gripper's grip_force (40 N, osgd.gripper)",
+    )
+    hand_force: float = Field(
+        500.0, gt=0.0, description="force limit of the constraint that moves the hand along its path, N"
+    )
+    # -- approach ------------------------------------------------------------
+    approach_distance: float = Field(
+        0.05, ge=0.0, le=0.5,
+        description="the pre-grasp pose is backed off this far against the approach direction, m",
+    )
+    approach_spacing: float = Field(
+        0.002, gt=0.0, le=0.02,
+        description="distance between the poses tested for collision along the approach, m",
+    )
+    approach_penetration: float = Field(
+        0.002, ge=0.0, le=0.01,
+        description="penetration of the object into the hand tolerated on the approach, m (the grasps stage "
+        "accepts 1 mm; 2 mm leaves room for pybullet's hull of the convex parts)",
+    )
+    # -- closing -------------------------------------------------------------
+    close_speed: float = Field(0.2, gt=0.0, description="speed of each finger while closing, m/s")
+    close_duration: float = Field(
+        0.3, gt=0.0, description="longest time given to the fingers to close, s (they stop earlier once still)"
+    )
+    settle_speed: float = Field(
+        0.002, gt=0.0, description="the fingers count as closed once both move slower than this, m/s"
+    )
+    contact_distance: float = Field(
+        0.001, ge=0.0, le=0.01,
+        description="a finger touches the object when their closest distance is at most this, m",
+    )
+    min_opening: float = Field(
+        0.001, ge=0.0,
+        description="an object counts as between the pads only while they are at least this far apart, m",
+    )
+    # -- lift ----------------------------------------------------------------
+    lift_height: float = Field(
+        0.10, ge=0.0, description="how far the hand rises after closing, m (VGN's 10 cm, REFERENCE section 5)"
+    )
+    lift_duration: float = Field(0.25, gt=0.0, description="time taken by the lift, s")
+    hold_duration: float = Field(0.1, ge=0.0, description="time the hand stays still after the lift, s")
+    # -- shake ---------------------------------------------------------------
+    shake_distance: float = Field(
+        0.02, ge=0.0,
+        description="amplitude of each linear shake, m (with the default period a peak acceleration of "
+        "about 1.3 g)",
+    )
+    shake_angle: float = Field(
+        0.35, ge=0.0, le=3.2, description="amplitude of each rotational shake about the grasp centre, rad (20 deg)"
+    )
+    shake_period: float = Field(
+        0.25, gt=0.0,
+        description="duration of one shake: one full sine period along one axis, s; three linear and three "
+        "rotational shakes follow each other",
+    )
+    # -- success -------------------------------------------------------------
+    max_slip_distance: float = Field(
+        0.02, ge=0.0,
+        description="largest displacement of the object's centre of mass relative to the hand for a held "
+        "grasp, m",
+    )
+    max_slip_rotation: float = Field(
+        0.35, ge=0.0, le=3.2,
+        description="largest rotation of the object relative to the hand for a held grasp, rad (20 deg)",
+    )

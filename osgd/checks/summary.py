@@ -1,0 +1,130 @@
+"""Acceptance rates of the grasp trials per category and per task.
+
+The ``checks`` table holds only ``model_id`` and ``grasp_id``; the task
+comes from the ``grasps`` shard the checks shard was built from and the
+category from the ``models`` shards. The stage knows the grasps shard of
+each item from its plan; without a plan (another process, a fresh stage)
+the grasps shards on disk with the same item id are read instead.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from osgd.checks.trial import FAIL_REASONS
+from osgd.store import ShardRecord, ShardStore
+from osgd.taxonomy import CATEGORIES, TASKS
+
+
+@dataclass
+class AcceptanceCounts:
+    """Trials and stable trials per category, per task and per failure reason.
+
+    Attributes
+    ----------
+    trials, stable : Counter of (category, task) -> int
+    fail_reasons : Counter of str -> int
+    """
+
+    trials: Counter[tuple[str, str]] = field(default_factory=Counter)
+    stable: Counter[tuple[str, str]] = field(default_factory=Counter)
+    fail_reasons: Counter[str] = field(default_factory=Counter)
+
+    def rate(self, category: str | None = None, task: str | None = None) -> tuple[int, int]:
+        """(stable, trials) summed over the keys matching ``category`` and ``task`` (None: any)."""
+        def matches(key: tuple[str, str]) -> bool:
+            return (category is None or key[0] == category) and (task is None or key[1] == task)
+
+        return (sum(value for key, value in self.stable.items() if matches(key)),
+                sum(value for key, value in self.trials.items() if matches(key)))
+
+
+def _grasps_keys_by_item(store: ShardStore) -> dict[str, list[str]]:
+    """Item id -> keys of the grasps shards on disk with that item id."""
+    keys: dict[str, list[str]] = {}
+    for key in store.keys_on_disk("grasps"):
+        try:
+            item_id = json.loads(store.checksum_path("grasps", key).read_text())["item"]
+        except (FileNotFoundError, ValueError, KeyError):
+            continue
+        keys.setdefault(item_id, []).append(key)
+    return keys
+
+
+def acceptance_counts(
+    store: ShardStore,
+    records: Sequence[ShardRecord],
+    grasps_keys: Mapping[str, Sequence[str]] | None = None,
+) -> AcceptanceCounts:
+    """Count the trials of the given ``checks`` shards.
+
+    Parameters
+    ----------
+    store : ShardStore
+    records : sequence of ShardRecord
+        ``checks`` shards.
+    grasps_keys : mapping of item id to grasps keys, optional
+        The grasps shards each checks item read; found on disk by item id
+        where missing.
+
+    Returns
+    -------
+    AcceptanceCounts
+        A grasp whose task or model is not found counts under ``"?"``.
+    """
+    grasps_keys = dict(grasps_keys or {})
+    if any(record.item_id not in grasps_keys for record in records):
+        on_disk = _grasps_keys_by_item(store)
+        for record in records:
+            grasps_keys.setdefault(record.item_id, on_disk.get(record.item_id, []))
+    categories: dict[str, str] = {}
+    for key in store.keys_on_disk("models"):
+        models = store.read("models", key, columns=["model_id", "category"])
+        categories.update(zip(models.column("model_id").to_pylist(), models.column("category").to_pylist(),
+                              strict=True))
+    counts = AcceptanceCounts()
+    for record in records:
+        tasks: dict[tuple[str, int], str] = {}
+        for key in grasps_keys.get(record.item_id, ()):
+            grasps = store.read("grasps", key, columns=["model_id", "grasp_id", "task"])
+            tasks.update(zip(zip(grasps.column("model_id").to_pylist(), grasps.column("grasp_id").to_pylist(),
+                                 strict=True), grasps.column("task").to_pylist(), strict=True))
+        checks = store.read("checks", record.key, columns=["model_id", "grasp_id", "stable", "fail_reason"])
+        for model_id, grasp_id, stable, reason in zip(
+            *(checks.column(name).to_pylist() for name in ("model_id", "grasp_id", "stable", "fail_reason")),
+            strict=True,
+        ):
+            key = (categories.get(model_id, "?"), tasks.get((model_id, grasp_id), "?"))
+            counts.trials[key] += 1
+            counts.stable[key] += int(stable)
+            if reason:
+                counts.fail_reasons[reason] += 1
+    return counts
+
+
+def _table(title: str, names: Sequence[str], counts: AcceptanceCounts, by: str) -> list[str]:
+    lines = [title, f"  {'':<14}{'trials':>8}{'stable':>8}{'rate':>8}"]
+    for name in names:
+        stable, trials = counts.rate(**{by: name})
+        if trials:
+            lines.append(f"  {name:<14}{trials:>8}{stable:>8}{100 * stable / trials:>7.1f}%")
+    return lines
+
+
+def format_acceptance(counts: AcceptanceCounts) -> str:
+    """Acceptance per category, per task and the failure reasons, as text."""
+    stable, trials = counts.rate()
+    if not trials:
+        return "checks: no grasps tried"
+    categories = [*CATEGORIES, *sorted({key[0] for key in counts.trials} - set(CATEGORIES))]
+    tasks = [*TASKS, *sorted({key[1] for key in counts.trials} - set(TASKS))]
+    lines = [f"checks: {stable} of {trials} grasps stable ({100 * stable / trials:.1f}%)"]
+    lines += _table("per category", categories, counts, "category")
+    lines += _table("per task", tasks, counts, "task")
+    if counts.fail_reasons:
+        lines.append("failures: " + ", ".join(
+            f"{reason} {counts.fail_reasons[reason]}" for reason in FAIL_REASONS if counts.fail_reasons[reason]))
+    return "\n".join(lines)

@@ -1,0 +1,344 @@
+"""One simulated grasp trial: approach, close, lift, shake, judge.
+
+The trial follows the shake tests of ACRONYM and OMG-Planner and the tug of
+GraspGen (REFERENCE section 5) in a world with no floor:
+
+1. **Approach.** The hand starts at the pre-grasp pose, the grasp pose backed
+   off by ``approach_distance`` against the approach axis ``z``, with the
+   fingers at the grasp's pre-grasp ``width``, and sweeps in to the grasp
+   pose. The sweep is a collision test at every ``approach_spacing``, not a
+   dynamic motion: a free-floating object pushed aside by the hand would
+   otherwise still count as reached. Any pose where the object enters the
+   hand deeper than ``approach_penetration`` is an ``approach_collision``.
+2. **Close.** Gravity is off: the object floats where the grasp says, so
+   fingertips never stop on a floor above a thin object (REFERENCE section 8)
+   and the object is free to centre itself between the pads, as it would on
+   a real hand closing on a resting object. The fingers close at
+   ``close_speed`` with the grip force limit until they are still. Unless
+   both pads then touch the object, the trial ends as ``empty_close``.
+3. **Lift.** Gravity is switched on and the hand rises ``lift_height``, then
+   holds still. The object's pose relative to the hand after closing is the
+   reference of all slip measures; if the object is no longer touched by
+   both pads, or has slipped more than ``max_slip_distance`` /
+   ``max_slip_rotation``, the trial ends as ``slipped_on_lift``.
+4. **Shake.** Three linear shakes (one sine period of ``shake_distance``
+   amplitude along each axis of a random frame) then three rotational ones
+   (``shake_angle`` about each axis of the same frame, through the grasp
+   centre). The same criterion judged at the end (and every few steps, to
+   stop early) gives ``dropped_on_shake``; otherwise the grasp is stable.
+
+World frame: the grasp centre is at the origin with the approach pointing
+down (world ``-z``), the usual top-down pick, so gravity pulls the object
+along the approach, out of the hand's opening; the object is placed where the
+grasp row puts it relative to the gripper.
+
+Each trial starts from a reset world (``resetSimulation``, then a new hand
+and object), so its outcome depends only on its own inputs and the random
+generator it is given: never on the trials run before it in the same
+process.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pybullet
+from scipy.spatial.transform import Rotation
+
+from osgd.checks.hand import FINGER_A, FINGER_B, SimulatedHand, create_hand
+from osgd.checks.params import ChecksStageParams
+from osgd.gripper import Gripper
+from osgd.physics import ObjectBody, create_object_body
+
+log = logging.getLogger(__name__)
+
+#: Outcomes of a trial, in the order its phases run ("" for a stable grasp).
+FAIL_REASONS: tuple[str, ...] = ("approach_collision", "empty_close", "slipped_on_lift", "dropped_on_shake")
+
+#: The gripper frame in the world at the grasp: rotated pi about world x,
+#: so the approach axis z points down.
+GRASP_QUATERNION_IN_WORLD = np.array([1.0, 0.0, 0.0, 0.0])
+
+#: During the shake the hold is tested every this many steps (cheaper than
+#: every step; a dropped object falls clear of the pads within a few).
+_HOLD_CHECK_INTERVAL = 8
+
+
+@dataclass(frozen=True)
+class TrialResult:
+    """The outcome of one grasp trial; the columns of the ``checks`` table.
+
+    Attributes
+    ----------
+    stable : bool
+    fail_reason : str
+        ``""`` or one of :data:`FAIL_REASONS`.
+    slip_distance : float
+        Displacement of the object's centre of mass relative to the hand
+        since the fingers closed, m (0 when the trial ended before closing).
+    slip_rotation : float
+        Rotation of the object relative to the hand since the fingers
+        closed, rad.
+    final_opening : float
+        Pad-to-pad distance at the end of the trial, m.
+    sim_steps : int
+        Physics steps simulated.
+    """
+
+    stable: bool
+    fail_reason: str
+    slip_distance: float
+    slip_rotation: float
+    final_opening: float
+    sim_steps: int
+
+
+# -- the per-process physics client -------------------------------------------
+
+_CLIENT: int | None = None
+
+
+def trial_client() -> int:
+    """This process's physics client for grasp trials, created on first use.
+
+    One DIRECT client per worker process, reused by every trial the process
+    runs (connecting costs more than a whole trial); disconnected at exit.
+    """
+    global _CLIENT
+    if _CLIENT is None or not pybullet.isConnected(_CLIENT):
+        _CLIENT = pybullet.connect(pybullet.DIRECT)
+        atexit.register(_disconnect)
+    return _CLIENT
+
+
+def _disconnect() -> None:
+    global _CLIENT
+    if _CLIENT is not None and pybullet.isConnected(_CLIENT):
+        pybullet.disconnect(_CLIENT)
+    _CLIENT = None
+
+
+# -- geometry helpers ----------------------------------------------------------
+
+def _compose(
+    position_a: np.ndarray, quaternion_a: np.ndarray, position_b: np.ndarray, quaternion_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The transform ``a * b`` of two (position, (x, y, z, w)) poses."""
+    rotation_a = Rotation.from_quat(quaternion_a)
+    return rotation_a.apply(position_b) + position_a, (rotation_a * Rotation.from_quat(quaternion_b)).as_quat()
+
+
+def _invert(position: np.ndarray, quaternion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    inverse = Rotation.from_quat(quaternion).inv()
+    return -inverse.apply(position), inverse.as_quat()
+
+
+class _Trial:
+    """The state of one running trial: the hand, the object, the step count."""
+
+    def __init__(self, client: int, hand: SimulatedHand, body: ObjectBody, params: ChecksStageParams) -> None:
+        self.client = client
+        self.hand = hand
+        self.body = body
+        self.params = params
+        self.steps = 0
+        self.reference: tuple[np.ndarray, np.ndarray] | None = None
+
+    def step(self) -> None:
+        pybullet.stepSimulation(physicsClientId=self.client)
+        self.steps += 1
+
+    def touching(self, finger: int) -> bool:
+        """Whether a finger is within ``contact_distance`` of the object."""
+        return bool(pybullet.getClosestPoints(
+            self.hand.body_id, self.body.body_id, self.params.contact_distance,
+            linkIndexA=finger, physicsClientId=self.client,
+        ))
+
+    def gripped(self) -> bool:
+        """Whether the object is between the pads: both touch it, and they
+        have not closed on each other (fingertips resting on a face touch it
+        too)."""
+        return (
+            self.hand.opening() >= self.params.min_opening
+            and self.touching(FINGER_A) and self.touching(FINGER_B)
+        )
+
+    def object_in_hand(self) -> tuple[np.ndarray, np.ndarray]:
+        """Pose of the object's centre-of-mass frame in the gripper frame."""
+        hand_position, hand_quaternion = self.hand.pose()
+        com_position, com_quaternion = pybullet.getBasePositionAndOrientation(
+            self.body.body_id, physicsClientId=self.client)
+        inverse_position, inverse_quaternion = _invert(hand_position, hand_quaternion)
+        return _compose(inverse_position, inverse_quaternion, np.asarray(com_position), np.asarray(com_quaternion))
+
+    def slip(self) -> tuple[float, float]:
+        """Displacement (m) and rotation (rad) of the object in the hand since closing."""
+        if self.reference is None:
+            return 0.0, 0.0
+        position, quaternion = self.object_in_hand()
+        distance = float(np.linalg.norm(position - self.reference[0]))
+        relative = Rotation.from_quat(self.reference[1]).inv() * Rotation.from_quat(quaternion)
+        return distance, float(relative.magnitude())
+
+    def held(self) -> bool:
+        """Both pads on the object and the slip within bounds."""
+        if not self.gripped():
+            return False
+        distance, rotation = self.slip()
+        return distance <= self.params.max_slip_distance and rotation <= self.params.max_slip_rotation
+
+    def result(self, fail_reason: str) -> TrialResult:
+        distance, rotation = self.slip()
+        return TrialResult(
+            stable=not fail_reason,
+            fail_reason=fail_reason,
+            slip_distance=distance,
+            slip_rotation=rotation,
+            final_opening=self.hand.opening(),
+            sim_steps=self.steps,
+        )
+
+
+def _steps(duration: float, timestep: float) -> int:
+    return max(1, round(duration / timestep))
+
+
+def _approach_collides(trial: _Trial, position: np.ndarray, quaternion: np.ndarray, opening: float) -> bool:
+    """Sweep the open hand from the pre-grasp pose to the grasp pose."""
+    params = trial.params
+    approach = Rotation.from_quat(quaternion).apply([0.0, 0.0, 1.0])
+    count = int(np.ceil(params.approach_distance / params.approach_spacing)) + 1
+    for backoff in np.linspace(params.approach_distance, 0.0, count):
+        trial.hand.reset(position - backoff * approach, quaternion, opening)
+        contacts = pybullet.getClosestPoints(
+            trial.hand.body_id, trial.body.body_id, 0.0, physicsClientId=trial.client)
+        if any(contact[8] < -params.approach_penetration for contact in contacts):
+            return True
+    return False
+
+
+def _shake_targets(
+    position: np.ndarray, quaternion: np.ndarray, params: ChecksStageParams, rng: np.random.Generator
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The hand's target poses during the six shakes, one array pair per shake.
+
+    Returns
+    -------
+    list of (positions (S, 3) float64, quaternions (S, 4) float64)
+        World frame; ``S`` steps per shake.
+    """
+    axes = Rotation.random(random_state=rng).as_matrix().T
+    steps = _steps(params.shake_period, params.timestep)
+    phase = np.sin(2 * np.pi * np.arange(1, steps + 1) / steps)[:, None]
+    still_positions = np.repeat(position[None, :], steps, axis=0)
+    still_quaternions = np.repeat(np.asarray(quaternion, dtype=np.float64)[None, :], steps, axis=0)
+    targets = [(position + phase * params.shake_distance * axis, still_quaternions) for axis in axes]
+    rest = Rotation.from_quat(quaternion)
+    targets += [
+        (still_positions, (Rotation.from_rotvec(phase * params.shake_angle * axis) * rest).as_quat())
+        for axis in axes
+    ]
+    return targets
+
+
+def run_trial(
+    model: Mapping[str, Any],
+    grasp_position: np.ndarray,
+    grasp_quaternion: np.ndarray,
+    width: float,
+    params: ChecksStageParams,
+    gripper: Gripper,
+    rng: np.random.Generator,
+    client: int | None = None,
+) -> TrialResult:
+    """Simulate one grasp of one model.
+
+    Parameters
+    ----------
+    model : mapping
+        A ``models`` row (``Table.to_pylist()`` form).
+    grasp_position : (3,) float
+        Grasp centre (gripper-frame origin) in the object frame, m.
+    grasp_quaternion : (4,) float
+        Gripper frame in the object frame, (x, y, z, w).
+    width : float
+        Pre-grasp opening, m; clipped to the gripper's maximum.
+    params : ChecksStageParams
+    gripper : Gripper
+        The hand to simulate.
+    rng : numpy.random.Generator
+        Draws the frame of the shake directions.
+    client : int, optional
+        pybullet client; this process's :func:`trial_client` by default.
+
+    Returns
+    -------
+    TrialResult
+    """
+    client = trial_client() if client is None else client
+    pybullet.resetSimulation(physicsClientId=client)
+    pybullet.setPhysicsEngineParameter(
+        fixedTimeStep=params.timestep, numSolverIterations=params.solver_iterations,
+        deterministicOverlappingPairs=1, physicsClientId=client,
+    )
+    pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
+    grip_force = gripper.grip_force if params.grip_force is None else params.grip_force
+    hand = create_hand(
+        client, gripper, palm_mass=params.palm_mass, finger_mass=params.finger_mass,
+        finger_friction=params.finger_friction, constraint_force=params.hand_force,
+    )
+    hand_position = np.zeros(3)
+    hand_quaternion = GRASP_QUATERNION_IN_WORLD
+    # Object pose in the world: (hand in world) * (grasp in object)^-1.
+    object_position, object_quaternion = _compose(
+        hand_position, hand_quaternion,
+        *_invert(np.array(grasp_position, dtype=np.float64), np.array(grasp_quaternion, dtype=np.float64)),
+    )
+    body = create_object_body(client, model, object_position, object_quaternion)
+    trial = _Trial(client, hand, body, params)
+    opening = float(np.clip(width, 0.0, gripper.max_opening))
+
+    if _approach_collides(trial, hand_position, hand_quaternion, opening):
+        return trial.result("approach_collision")
+    hand.reset(hand_position, hand_quaternion, opening)
+
+    hand.close_fingers(params.close_speed, grip_force)
+    still_steps = 0
+    for _ in range(_steps(params.close_duration, params.timestep)):
+        trial.step()
+        still_steps = still_steps + 1 if hand.finger_speed() < params.settle_speed else 0
+        if still_steps >= 3:
+            break
+    if not trial.gripped():
+        return trial.result("empty_close")
+    trial.reference = trial.object_in_hand()
+
+    pybullet.setGravity(0.0, 0.0, -params.gravity, physicsClientId=client)
+    lift_steps = _steps(params.lift_duration, params.timestep)
+    for index in range(1, lift_steps + 1):
+        # Smooth (cosine) profile: no jump in the hand's commanded velocity.
+        fraction = (1 - np.cos(np.pi * index / lift_steps)) / 2
+        hand.move_to(hand_position + np.array([0.0, 0.0, fraction * params.lift_height]), hand_quaternion)
+        trial.step()
+    for _ in range(_steps(params.hold_duration, params.timestep) if params.hold_duration > 0 else 0):
+        trial.step()
+    if not trial.held():
+        return trial.result("slipped_on_lift")
+
+    lifted_position = hand_position + np.array([0.0, 0.0, params.lift_height])
+    for positions, quaternions in _shake_targets(lifted_position, hand_quaternion, params, rng):
+        for index, (position, quaternion) in enumerate(zip(positions, quaternions, strict=True), start=1):
+            hand.move_to(position, quaternion)
+            trial.step()
+            if index % _HOLD_CHECK_INTERVAL == 0 and not trial.gripped():
+                return trial.result("dropped_on_shake")
+    hand.move_to(lifted_position, hand_quaternion)
+    if not trial.held():
+        return trial.result("dropped_on_shake")
+    return trial.result("")

@@ -1,0 +1,227 @@
+"""The checks stage: real pybullet grasp trials on the fixture tools."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from helpers import block_parts, fixture_models, hammer_parts, model_row, write_models
+from scipy.spatial.transform import Rotation
+
+from osgd.checks.params import ChecksStageParams
+from osgd.checks.stage import ChecksStage, trial_seed
+from osgd.checks.summary import acceptance_counts
+from osgd.checks.trial import run_trial
+from osgd.gripper import PANDA
+from osgd.schemas import GRASPS, MODELS
+from osgd.stage import PlannedShard, WorkItem, run_stage
+from osgd.store import ShardStore
+
+PARAMS = ChecksStageParams()
+
+
+def top_down(closing_axis: list[float]) -> np.ndarray:
+    """Gripper quaternion in the object frame: approach along object -z, closing along ``closing_axis``."""
+    x = np.asarray(closing_axis, dtype=np.float64)
+    z = np.array([0.0, 0.0, -1.0])
+    return Rotation.from_matrix(np.column_stack([x, np.cross(z, x), z])).as_quat()
+
+
+ACROSS_Y = top_down([0.0, 1.0, 0.0])  # closing across the tools' thickness
+ALONG_X = top_down([1.0, 0.0, 0.0])  # closing along the tools' length
+
+
+def trial(model: dict, position: list[float], quaternion: np.ndarray, width: float,
+          params: ChecksStageParams = PARAMS, seed: int = 0):
+    return run_trial(model, np.asarray(position, dtype=np.float64), quaternion, width, params, PANDA,
+                     np.random.default_rng(seed))
+
+
+@pytest.fixture(scope="module")
+def models() -> dict[str, dict]:
+    return {row["name"].split("/")[1]: row for row in fixture_models()}
+
+
+# -- grasps that hold ------------------------------------------------------------
+
+@pytest.mark.parametrize(("name", "position", "width"), [
+    ("block", [0.0, 0.0, 0.0], 0.05),  # 4 cm block, through its middle
+    ("block", [0.03, 0.0, 0.0], 0.05),
+    ("hammer", [-0.02, 0.0, 0.0], 0.035),  # 2.5 cm handle near the centre of mass
+    ("screwdriver", [-0.06, 0.0, 0.0], 0.04),  # 3 cm handle
+])
+def test_grasp_through_the_middle_of_a_compact_body_is_stable(models, name, position, width) -> None:
+    result = trial(models[name], position, ACROSS_Y, width)
+    assert result.stable, result
+    assert result.fail_reason == ""
+    assert result.slip_distance < PARAMS.max_slip_distance
+    # The pads end on the object: the opening is its thickness, not zero.
+    thickness = {"block": 0.04, "hammer": 0.025, "screwdriver": 0.03}[name]
+    assert result.final_opening == pytest.approx(thickness, abs=0.004)
+    assert result.sim_steps > 0
+
+
+# -- grasps that cannot hold, and why ----------------------------------------------
+
+def test_grasp_beside_the_object_closes_empty(models) -> None:
+    result = trial(models["block"], [0.0, 0.07, 0.0], ACROSS_Y, 0.05)
+    assert not result.stable
+    assert result.fail_reason == "empty_close"
+    assert result.final_opening < PARAMS.min_opening
+
+
+def test_fingertips_closing_on_a_single_face_close_empty(models) -> None:
+    # Grasp centre above the top face: the fingertips end 1 mm above it, both
+    # pads on the same side of the object; they close onto each other.
+    fingertip_below_centre = PANDA.finger_depth / 2
+    result = trial(models["block"], [0.0, 0.0, 0.02 + fingertip_below_centre + 0.001], ACROSS_Y, 0.05)
+    assert result.fail_reason == "empty_close"
+
+
+def test_object_wider_than_the_hand_collides_on_approach(models) -> None:
+    # Closing along the 12 cm block: it does not fit between 8 cm pads.
+    result = trial(models["block"], [0.0, 0.0, 0.0], ALONG_X, PANDA.max_opening)
+    assert result.fail_reason == "approach_collision"
+    assert result.sim_steps == 0
+
+
+def test_pre_grasp_opening_narrower_than_the_object_collides_on_approach(models) -> None:
+    result = trial(models["block"], [0.0, 0.0, 0.0], ACROSS_Y, 0.03)
+    assert result.fail_reason == "approach_collision"
+
+
+def test_heavy_slippery_block_slips_on_lift() -> None:
+    # 0.58 kg at friction 0.05: two pads at 40 N hold at most 4 N < 5.7 N of weight.
+    block = model_row("slippery", "knife", block_parts(), density=3000.0, friction=(0.05, 0.01, 0.01))
+    result = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05)
+    assert result.fail_reason == "slipped_on_lift"
+    assert result.slip_distance > PARAMS.max_slip_distance
+
+
+def test_heavy_head_held_at_the_handle_end_slips() -> None:
+    hammer = model_row("heavy", "hammer", hammer_parts(), density=8000.0)
+    end = trial(hammer, [-0.14, 0.0, 0.0], ACROSS_Y, 0.035)
+    assert end.fail_reason == "slipped_on_lift"
+    # The head's weight turns the hammer about the closing axis.
+    assert end.slip_rotation > PARAMS.max_slip_rotation
+
+
+def test_violent_shake_drops_what_the_lift_keeps() -> None:
+    block = model_row("grippy", "knife", block_parts(), density=3000.0, friction=(0.2, 0.01, 0.01))
+    gentle = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05)
+    assert gentle.stable, gentle
+    # 8 cm in 0.25 s: a peak acceleration of about 5 g.
+    violent = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05, ChecksStageParams(shake_distance=0.08))
+    assert violent.fail_reason == "dropped_on_shake"
+
+
+def test_same_seed_same_result_regardless_of_earlier_trials(models) -> None:
+    hammer = models["hammer"]
+    first = trial(hammer, [-0.08, 0.0, 0.0], ACROSS_Y, 0.035, seed=5)
+    trial(models["block"], [0.0, 0.0, 0.0], ACROSS_Y, 0.05)  # other work in the same client
+    again = trial(hammer, [-0.08, 0.0, 0.0], ACROSS_Y, 0.035, seed=5)
+    assert dataclasses.asdict(first) == dataclasses.asdict(again)
+
+
+# -- the stage ---------------------------------------------------------------------
+
+def grasp_rows(model: dict, grasps: list[tuple[list[float], np.ndarray, float, str]]) -> list[dict]:
+    rows = []
+    for grasp_id, (position, quaternion, width, task) in enumerate(grasps):
+        closing = Rotation.from_quat(quaternion).apply([1.0, 0.0, 0.0])
+        rows.append({
+            "model_id": model["model_id"], "grasp_id": grasp_id, "task": task,
+            "position": list(position), "quaternion": quaternion.tolist(), "width": width,
+            "contact_a": (np.asarray(position) - closing * width / 2).tolist(),
+            "contact_b": (np.asarray(position) + closing * width / 2).tolist(),
+            "origin": "test", "pair_index": grasp_id, "quality": float("nan"),
+        })
+    return rows
+
+
+HAND_MADE = {
+    "block": [([0.0, 0.0, 0.0], ACROSS_Y, 0.05, "cut"), ([0.0, 0.07, 0.0], ACROSS_Y, 0.05, "hand over"),
+              ([0.0, 0.0, 0.0], ALONG_X, 0.08, "cut")],
+    "hammer": [([-0.02, 0.0, 0.0], ACROSS_Y, 0.035, "hammer"), ([0.05, 0.0, 0.0], ACROSS_Y, 0.035, "hand over")],
+    "screwdriver": [([-0.06, 0.0, 0.0], ACROSS_Y, 0.04, "screw")],
+}
+
+
+def planned_upstream(store: ShardStore, models: dict[str, dict]) -> dict[str, list[PlannedShard]]:
+    """One models shard and one grasps shard per fixture model, paired by item id."""
+    upstream: dict[str, list[PlannedShard]] = {"models": [], "grasps": []}
+    for number, (name, model) in enumerate(sorted(models.items())):
+        models_key = write_models(store, [model], key=f"{number:064x}")
+        grasps_key = f"{number + 100:064x}"
+        store.write("grasps", grasps_key, name, pa.Table.from_pylist(grasp_rows(model, HAND_MADE[name]), schema=GRASPS))
+        upstream["models"].append(PlannedShard(WorkItem(name, {}), models_key))
+        upstream["grasps"].append(PlannedShard(WorkItem(name, {}, {"models": (models_key,)}), grasps_key))
+    # An empty models shard (a rejected model) and its empty grasps shard.
+    empty_models = store.write("models", "e" * 64, "rejected", MODELS.empty_table())
+    empty_grasps = store.write("grasps", "f" * 64, "rejected", GRASPS.empty_table())
+    upstream["models"].append(PlannedShard(WorkItem("rejected", {}), empty_models.key))
+    upstream["grasps"].append(PlannedShard(WorkItem("rejected", {}), empty_grasps.key))
+    return upstream
+
+
+def test_stage_checks_every_grasp_resumes_and_summarises(tmp_path, models) -> None:
+    store = ShardStore(tmp_path)
+    upstream = planned_upstream(store, models)
+    stage = ChecksStage()
+    shards = stage.planned(PARAMS, 7, upstream)
+    assert [shard.item.item_id for shard in shards] == ["block", "hammer", "screwdriver", "rejected"]
+    for shard, models_shard, grasps_shard in zip(shards, upstream["models"], upstream["grasps"], strict=True):
+        assert shard.item.inputs == {"models": (models_shard.key,), "grasps": (grasps_shard.key,)}
+
+    report = run_stage(stage, shards, store)
+    assert report.ok and report.built == 4
+    rows = {shard.item.item_id: store.read("checks", shard.key).to_pylist() for shard in shards}
+    assert rows["rejected"] == []
+    assert [row["grasp_id"] for row in rows["block"]] == [0, 1, 2]
+    assert [row["fail_reason"] for row in rows["block"]] == ["", "empty_close", "approach_collision"]
+    assert [row["stable"] for row in rows["hammer"]] == [True, True]
+    assert rows["screwdriver"][0]["stable"]
+
+    # Interrupted run: one shard lost. Only that one is rebuilt, byte-identical.
+    lost = shards[1]
+    sha_before = store.verify("checks", lost.key).sha256
+    store.shard_path("checks", lost.key).unlink()
+    again = run_stage(stage, shards, store)
+    assert (again.reused, again.built) == (3, 1)
+    assert store.verify("checks", lost.key).sha256 == sha_before
+
+    counts = acceptance_counts(store, again.records)
+    assert counts.rate(category="knife") == (1, 3)  # the block is filed as a knife
+    assert counts.rate(task="hand over") == (1, 2)
+    assert counts.rate(category="hammer", task="hammer") == (1, 1)
+    assert counts.fail_reasons == {"empty_close": 1, "approach_collision": 1}
+    text = stage.summary(store, again.records)
+    assert "4 of 6 grasps stable" in text  # block 1 of 3, hammer 2 of 2, screwdriver 1 of 1
+    assert "hand over" in text and "knife" in text
+
+
+def test_plan_requires_a_grasps_shard_per_models_shard(tmp_path, models) -> None:
+    store = ShardStore(tmp_path)
+    upstream = planned_upstream(store, models)
+    upstream["grasps"] = upstream["grasps"][1:]
+    with pytest.raises(ValueError, match="block"):
+        ChecksStage().plan(PARAMS, 0, upstream)
+
+
+def test_keys_follow_parameters_and_seed(tmp_path, models) -> None:
+    store = ShardStore(tmp_path)
+    upstream = planned_upstream(store, models)
+    stage = ChecksStage()
+    base = [shard.key for shard in stage.planned(PARAMS, 0, upstream)]
+    assert base == [shard.key for shard in stage.planned(ChecksStageParams(), 0, upstream)]
+    assert base[0] != stage.planned(PARAMS, 1, upstream)[0].key
+    assert base[0] != stage.planned(ChecksStageParams(lift_height=0.2), 0, upstream)[0].key
+
+
+def test_trial_seeds_depend_on_the_grasp_not_on_its_neighbours() -> None:
+    first = trial_seed(3, "abc", 4).random(4)
+    np.testing.assert_array_equal(first, trial_seed(3, "abc", 4).random(4))
+    assert not np.array_equal(first, trial_seed(3, "abc", 5).random(4))
+    assert not np.array_equal(first, trial_seed(4, "abc", 4).random(4))
