@@ -1,17 +1,308 @@
-"""The samples stage (not implemented yet: issue #7)."""
+"""The samples stage: noisy depth images with boxes and task-labelled grasp rectangles.
+
+One work item per ``scenes`` shard; it reads that shard and every shard of
+``models``, ``grasps`` and ``checks``, and writes ``views_per_scene`` rows
+per scene (``sample_id = f"{scene_id}_view{n}"``). Per sample:
+
+1. a camera pose above the pile (:mod:`osgd.samples.viewpoint`), drawn
+   from ``(pipeline seed, scene_index, view)``;
+2. depth and instance mask of the objects' full meshes and the floor
+   (:mod:`osgd.samples.renderer`); readings outside the sensor's range
+   become 0;
+3. noise on a copy of the depth (:mod:`osgd.samples.noise`);
+4. boxes and visible fractions (:mod:`osgd.samples.boxes`); objects below
+   ``min_visible_fraction`` are dropped with their grasps;
+5. the stable grasps (``checks.stable``) of each kept object, moved to the
+   camera frame, filtered and projected (:mod:`osgd.samples.projection`,
+   :mod:`osgd.samples.collision`).
+
+The split (train or test) is a function of the scene id alone (sha256), so
+a scene stays in its split whatever else changes.
+"""
 
 from __future__ import annotations
 
+import hashlib
+import logging
+from collections import Counter
 from collections.abc import Mapping, Sequence
+from typing import Any, Literal
 
+import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
+from pydantic import Field
+from scipy.spatial.transform import Rotation
 
-from osgd.stage import PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardStore
+from osgd.camera import KINECT_V2, CameraIntrinsics
+from osgd.gripper import PANDA
+from osgd.samples.boxes import silhouette_pixels, visible_boxes
+from osgd.samples.collision import pile_collider
+from osgd.samples.encoding import encode_depth, encode_mask
+from osgd.samples.noise import NoiseModel, add_noise
+from osgd.samples.projection import (
+    GraspSet,
+    angle_to_optical_axis,
+    centres_in_image,
+    contacts_visible,
+    grasp_rectangles,
+    grasp_set_from_rows,
+    suppress,
+)
+from osgd.samples.renderer import Renderer, RenderObject, make_renderer
+from osgd.samples.viewpoint import draw_camera_pose
+from osgd.schemas import SAMPLES
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.store import ShardRecord, ShardStore
+
+log = logging.getLogger(__name__)
+
+#: Mixed into every sample's seed so the samples stage draws differently
+#: from other stages seeded with the same pipeline seed.
+_STAGE_SALT = 0x5A3D1E
 
 
 class SamplesStageParams(StageParams):
-    """Parameters of the samples stage."""
+    """Parameters of the samples stage (the ``[samples]`` config section)."""
+
+    views_per_scene: int = Field(1, ge=1, description="Depth images per scene, each from its own camera pose.")
+    test_fraction: float = Field(
+        0.1, ge=0.0, le=1.0, description="Share of scenes in the test split (paper: not stated; 90/10 is ours)."
+    )
+    renderer: Literal["auto", "egl", "embree", "tiny"] = Field(
+        "auto", description="Rendering backend; auto tries egl, embree, tiny in that order."
+    )
+    image_width: int = Field(KINECT_V2.width, ge=8, description="Image width, px (Kinect v2 depth: 512).")
+    image_height: int = Field(KINECT_V2.height, ge=8, description="Image height, px (Kinect v2 depth: 424).")
+    fx: float = Field(KINECT_V2.fx, gt=0, description="Focal length along x, px (Kinect v2: 70.6 deg over 512 px).")
+    fy: float = Field(KINECT_V2.fy, gt=0, description="Focal length along y, px.")
+    cx: float | None = Field(None, description="Principal point x, px; default: the image centre.")
+    cy: float | None = Field(None, description="Principal point y, px; default: the image centre.")
+    camera_height: float = Field(
+        0.75, gt=0, description="Camera height above the table, m (0.25 m past the Kinect v2's 0.5 m near limit)."
+    )
+    max_tilt: float = Field(0.17, ge=0, le=1.0, description="Largest tilt of the optical axis from vertical, rad.")
+    max_yaw: float = Field(0.26, ge=0, le=np.pi, description="Largest turn of the image about the optical axis, rad.")
+    noise_model: Literal["none", "gaussian", "sensor"] = Field(
+        "gaussian", description="gaussian: the paper's zero-mean gaussian; sensor: adds correlated, edge, hole noise."
+    )
+    noise_sigma: float = Field(0.002, ge=0, description="Gaussian depth noise std, m (Kinect v2: ~1-2 mm).")
+    correlated_sigma: float = Field(0.002, ge=0, description="sensor model: correlated noise std, m (REFERENCE 6).")
+    correlated_cell: int = Field(16, ge=1, description="sensor model: correlated noise grid cell, px.")
+    edge_hole_fraction: float = Field(0.3, ge=0, le=1, description="sensor model: share of edge pixels lost.")
+    hole_fraction: float = Field(0.002, ge=0, le=1, description="sensor model: share of all pixels lost.")
+    min_visible_fraction: float = Field(
+        0.1, ge=0, le=1, description="Objects whose visible share of their silhouette is below this are dropped."
+    )
+    min_angle_to_optical_axis: float = Field(
+        np.pi / 4, ge=0, le=np.pi / 2, description="Grasps whose closing line is nearer the optical axis are dropped, "
+        "rad (paper: 45 deg).")
+    nms_radius: float = Field(
+        0.015, ge=0, description="NMS radius on 3-D grasp centres, m (original: 0.05 model units, ~1-1.5 cm).")
+    contact_tolerance: float = Field(
+        0.01, ge=0, description="A contact is hidden when the rendered depth is this much in front of it, m.")
+    collision_tolerance: float = Field(
+        0.001, ge=0, description="Gripper penetration into another object that still counts as free, m.")
+
+    def intrinsics(self) -> CameraIntrinsics:
+        """The camera intrinsics these parameters describe."""
+        return CameraIntrinsics(
+            width=self.image_width,
+            height=self.image_height,
+            fx=self.fx,
+            fy=self.fy,
+            cx=(self.image_width - 1) / 2 if self.cx is None else self.cx,
+            cy=(self.image_height - 1) / 2 if self.cy is None else self.cy,
+            near=KINECT_V2.near,
+            far=KINECT_V2.far,
+        )
+
+    def noise(self) -> NoiseModel:
+        """The depth noise these parameters describe."""
+        return NoiseModel(
+            model=self.noise_model,
+            sigma=self.noise_sigma,
+            correlated_sigma=self.correlated_sigma,
+            correlated_cell=self.correlated_cell,
+            edge_hole_fraction=self.edge_hole_fraction,
+            hole_fraction=self.hole_fraction,
+        )
+
+
+def split_of(scene_id: str, test_fraction: float) -> str:
+    """``"test"`` or ``"train"``, from the sha256 of the scene id alone."""
+    value = int.from_bytes(hashlib.sha256(scene_id.encode("utf-8")).digest()[:8], "big") / 2.0**64
+    return "test" if value < test_fraction else "train"
+
+
+def sample_rng(seed: int, scene_index: int, view: int) -> np.random.Generator:
+    """The random generator of one sample: camera pose first, then noise."""
+    entropy = [seed % 2**64, _STAGE_SALT, scene_index % 2**64, view]
+    return np.random.default_rng(np.random.SeedSequence(entropy))
+
+
+def _pose_matrix(position: Sequence[float], quaternion: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    return Rotation.from_quat(np.asarray(quaternion, dtype=np.float64)).as_matrix(), np.asarray(
+        position, dtype=np.float64
+    )
+
+
+def render_sample(
+    scene: Mapping[str, Any],
+    view: int,
+    models: Mapping[str, Mapping[str, Any]],
+    stable_grasps: Mapping[str, GraspSet],
+    params: SamplesStageParams,
+    seed: int,
+    renderer: Renderer,
+) -> dict[str, Any]:
+    """One row of the ``samples`` table.
+
+    Parameters
+    ----------
+    scene : mapping
+        A ``scenes`` row (dict).
+    view : int
+        View number within the scene.
+    models : mapping of model id to ``models`` row (dict)
+    stable_grasps : mapping of model id to GraspSet
+        Each model's stable grasps, object frame.
+    params : SamplesStageParams
+    seed : int
+        The pipeline seed.
+    renderer : Renderer
+
+    Returns
+    -------
+    dict
+        Keyed by the columns of ``osgd.schemas.SAMPLES``.
+    """
+    intrinsics = params.intrinsics()
+    objects = list(scene["objects"])
+    rng = sample_rng(seed, int(scene["scene_index"]), view)
+    positions = np.array([obj["position"] for obj in objects], dtype=np.float64).reshape(-1, 3)
+    aim = np.array([*positions[:, :2].mean(axis=0), 0.0]) if len(positions) else np.zeros(3)
+    pose = draw_camera_pose(rng, aim, params.camera_height, params.max_tilt, params.max_yaw)
+
+    render_objects = []
+    for obj in objects:
+        model = models[obj["model_id"]]
+        render_objects.append(RenderObject(
+            key=obj["model_id"],
+            vertices=np.asarray(model["vertices"], dtype=np.float64).reshape(-1, 3),
+            faces=np.asarray(model["faces"], dtype=np.int64).reshape(-1, 3),
+            position=np.asarray(obj["position"], dtype=np.float64),
+            quaternion=np.asarray(obj["quaternion"], dtype=np.float64),
+        ))
+    rendering = renderer.render(render_objects, intrinsics, pose)
+    in_range = (rendering.depth >= intrinsics.near) & (rendering.depth <= intrinsics.far)
+    depth_clean = np.where(in_range, rendering.depth, 0.0)
+    depth = add_noise(depth_clean, rng, params.noise())
+
+    boxes, visible = visible_boxes(rendering.mask, len(objects))
+    sample_objects = []
+    kept_indices = []
+    for index, obj in enumerate(objects):
+        if visible[index] == 0:
+            continue
+        silhouette = silhouette_pixels(render_objects[index], intrinsics, pose)
+        fraction = min(1.0, visible[index] / silhouette) if silhouette else 0.0
+        if fraction < params.min_visible_fraction:
+            continue
+        kept_indices.append(index)
+        sample_objects.append({
+            "object_index": index,
+            "model_id": obj["model_id"],
+            "category": obj["category"],
+            "box": boxes[index].tolist(),
+            "visible_fraction": fraction,
+        })
+
+    camera_rotation_inverse = pose.rotation.T
+    sample_grasps = []
+    with pile_collider(models, objects, PANDA, params.collision_tolerance) as collider:
+        for index in kept_indices:
+            obj = objects[index]
+            grasps = stable_grasps.get(obj["model_id"])
+            if grasps is None or not len(grasps):
+                continue
+            object_rotation, object_position = _pose_matrix(obj["position"], obj["quaternion"])
+            world = grasps.transformed(object_rotation, object_position)
+            camera = world.transformed(camera_rotation_inverse, -camera_rotation_inverse @ pose.position)
+            angles = angle_to_optical_axis(camera.closing)
+            usable = (
+                (angles >= params.min_angle_to_optical_axis - 1e-9)
+                & centres_in_image(camera, intrinsics)
+                & contacts_visible(camera, depth_clean, intrinsics, params.contact_tolerance)
+            )
+            candidates = np.nonzero(usable)[0]
+            if not len(candidates):
+                continue
+
+            def free(position: int, candidates: np.ndarray = candidates, world: GraspSet = world,
+                     index: int = index) -> bool:
+                grasp = candidates[position]
+                return not collider.collides(index, world.positions[grasp], world.rotations[grasp],
+                                             float(world.widths[grasp]))
+
+            kept = candidates[suppress(camera.positions[candidates], angles[candidates], params.nms_radius, free)]
+            kept = np.sort(kept)
+            chosen = camera.subset(kept)
+            rectangles = grasp_rectangles(chosen, intrinsics, PANDA.finger_width)
+            quaternions = chosen.quaternions
+            for row in range(len(chosen)):
+                sample_grasps.append({
+                    "object_index": index,
+                    "grasp_id": int(chosen.grasp_ids[row]),
+                    "task": str(chosen.tasks[row]),
+                    "rectangle": rectangles[row].tolist(),
+                    "position": chosen.positions[row].tolist(),
+                    "quaternion": quaternions[row].tolist(),
+                    "width": float(chosen.widths[row]),
+                })
+
+    mask = rendering.mask
+    if mask.max(initial=0) > 255:
+        raise ValueError(f"scene {scene['scene_id']}: more than 255 objects do not fit the 8-bit mask")
+    return {
+        "sample_id": f"{scene['scene_id']}_view{view}",
+        "scene_id": scene["scene_id"],
+        "split": split_of(scene["scene_id"], params.test_fraction),
+        "height": intrinsics.height,
+        "width": intrinsics.width,
+        "depth": encode_depth(depth),
+        "depth_clean": encode_depth(depth_clean),
+        "mask": encode_mask(mask),
+        "intrinsics": intrinsics.as_array().tolist(),
+        "camera_position": pose.position.tolist(),
+        "camera_quaternion": pose.quaternion.tolist(),
+        "renderer": renderer.name,
+        "objects": sample_objects,
+        "grasps": sample_grasps,
+    }
+
+
+def load_stable_grasps(
+    store: ShardStore, inputs: Mapping[str, Sequence[str]], model_ids: set[str]
+) -> dict[str, GraspSet]:
+    """Each model's stable grasps (object frame), joining grasps and checks on (model_id, grasp_id)."""
+    value_set = pa.array(sorted(model_ids), type=pa.string())
+    grasps = store.read_many("grasps", list(inputs.get("grasps", ())))
+    grasps = grasps.filter(pc.is_in(grasps["model_id"], value_set=value_set))
+    checks = store.read_many("checks", list(inputs.get("checks", ())), columns=["model_id", "grasp_id", "stable"])
+    checks = checks.filter(pc.is_in(checks["model_id"], value_set=value_set))
+    stable = {
+        (model_id, grasp_id)
+        for model_id, grasp_id, ok in zip(
+            checks["model_id"].to_pylist(), checks["grasp_id"].to_pylist(), checks["stable"].to_pylist(), strict=True
+        )
+        if ok
+    }
+    rows_by_model: dict[str, list[dict]] = {model_id: [] for model_id in model_ids}
+    for row in grasps.to_pylist():
+        if (row["model_id"], row["grasp_id"]) in stable:
+            rows_by_model[row["model_id"]].append(row)
+    return {model_id: grasp_set_from_rows(rows) for model_id, rows in rows_by_model.items()}
 
 
 class SamplesStage(Stage):
@@ -20,15 +311,79 @@ class SamplesStage(Stage):
     name = "samples"
     table = "samples"
     version = 1
-    inputs = ('models', 'grasps', 'checks', 'scenes')
+    inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."
-    implemented = False
 
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
     ) -> list[WorkItem]:
-        return []
+        assert isinstance(params, SamplesStageParams)
+        shared = {table: tuple(sorted(shard.key for shard in upstream.get(table, ()))) for table in
+                  ("models", "grasps", "checks")}
+        items = []
+        for shard in upstream.get("scenes", ()):
+            payload = {"params": params.key_dict(), "seed": int(seed), "scenes_item": shard.item.item_id}
+            items.append(WorkItem(f"samples_{shard.item.item_id}", payload, {"scenes": (shard.key,), **shared}))
+        return items
 
-    def build(self, item: WorkItem, store: ShardStore) -> pa.Table:
-        raise NotImplementedError("the samples stage is not implemented yet (issue #7)")
+    def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
+        params = SamplesStageParams(**item.payload["params"])
+        seed = int(item.payload["seed"])
+        scenes = store.read_many("scenes", list(item.inputs["scenes"])).to_pylist()
+        model_ids = {obj["model_id"] for scene in scenes for obj in scene["objects"]}
+        models_table = store.read_many("models", list(item.inputs.get("models", ())))
+        models_table = models_table.filter(
+            pc.is_in(models_table["model_id"], value_set=pa.array(sorted(model_ids), type=pa.string()))
+        )
+        models = {row["model_id"]: row for row in models_table.to_pylist()}
+        missing = sorted(model_ids - set(models))
+        if missing:
+            raise KeyError(f"scenes shard {item.inputs['scenes'][0]} names models not in the models table: {missing}")
+        stable_grasps = load_stable_grasps(store, item.inputs, model_ids)
+        renderer, notes = resolve_renderer(params.renderer)
+        rows = [
+            render_sample(scene, view, models, stable_grasps, params, seed, renderer)
+            for scene in scenes
+            for view in range(params.views_per_scene)
+        ]
+        empty = [row["sample_id"] for row in rows if not row["grasps"]]
+        if empty:
+            notes.append(f"{len(empty)} of {len(rows)} samples have no grasp (e.g. {empty[0]})")
+        return BuildResult(pa.Table.from_pylist(rows, schema=SAMPLES), notes)
+
+    def summary(self, store: ShardStore, records: Sequence[ShardRecord]) -> str:
+        """Samples per split, objects and grasps per sample, grasps per task."""
+        tables = [store.read("samples", record.key, columns=["split", "renderer", "objects", "grasps"])
+                  for record in records]
+        if not tables:
+            return "no samples"
+        table = pa.concat_tables(tables)
+        splits = Counter(table["split"].to_pylist())
+        renderers = Counter(table["renderer"].to_pylist())
+        object_counts = np.array([len(objects) for objects in table["objects"].to_pylist()])
+        grasp_lists = table["grasps"].to_pylist()
+        grasp_counts = np.array([len(grasps) for grasps in grasp_lists])
+        tasks = Counter(grasp["task"] for grasps in grasp_lists for grasp in grasps)
+        lines = [
+            f"samples: {table.num_rows} ({', '.join(f'{name} {count}' for name, count in sorted(splits.items()))}); "
+            f"renderer: {', '.join(f'{name} {count}' for name, count in sorted(renderers.items()))}",
+            f"objects per sample: mean {object_counts.mean():.2f}, min {object_counts.min()}, "
+            f"max {object_counts.max()}",
+            f"grasps per sample: mean {grasp_counts.mean():.1f}, min {grasp_counts.min()}, max {grasp_counts.max()}; "
+            f"samples without grasps: {int((grasp_counts == 0).sum())}",
+            "grasps per task: " + ", ".join(f"{task} {count}" for task, count in sorted(tasks.items())),
+        ]
+        return "\n".join(lines)
+
+
+def resolve_renderer(name: str) -> tuple[Renderer, list[str]]:
+    """The renderer for a ``renderer`` parameter, with a note when ``auto`` fell back."""
+    renderer = make_renderer(name)
+    notes = []
+    if name == "auto" and renderer.name != "egl":
+        from osgd.samples.renderer import egl_available  # noqa: PLC0415
+
+        _, reason = egl_available()
+        notes.append(f"renderer auto fell back to {renderer.name}: {reason}")
+    return renderer, notes
