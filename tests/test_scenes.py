@@ -1,0 +1,253 @@
+"""The scenes stage: piles dropped until at rest, rejection, determinism, statistics."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pybullet
+import pytest
+from helpers import block_parts, fixture_models, model_row, write_models
+from pydantic import ValidationError
+from scipy.spatial.transform import Rotation
+
+from osgd.physics import create_object_body, get_mesh_pose, physics_client
+from osgd.scenes.drop import (
+    ModelPool,
+    Release,
+    attempt_seed,
+    build_world,
+    deepest_penetration,
+    draw_releases,
+    generate_scene,
+    simulate_drop,
+)
+from osgd.scenes.params import ScenesStageParams
+from osgd.scenes.pictures import show_scene
+from osgd.scenes.stage import ScenesStage
+from osgd.scenes.statistics import scene_statistics
+from osgd.scenes.views import posed_meshes
+from osgd.stage import PlannedShard, WorkItem, run_stage
+from osgd.store import ShardStore
+
+MODELS_KEY = "0" * 64
+
+
+def _plan(params: ScenesStageParams, seed: int = 0) -> list[PlannedShard]:
+    upstream = {"models": [PlannedShard(WorkItem("fixture", {}), MODELS_KEY)]}
+    return ScenesStage().planned(params, seed, upstream)
+
+
+def _store(root: Path) -> ShardStore:
+    store = ShardStore(root)
+    write_models(store, fixture_models(), MODELS_KEY)
+    return store
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[ShardStore, list[dict]]:
+    store = _store(tmp_path_factory.mktemp("scenes"))
+    report = run_stage(ScenesStage(), _plan(ScenesStageParams(count=4, scenes_per_shard=2)), store)
+    assert report.ok and report.built == 2
+    rows = [row for record in report.records for row in store.read("scenes", record.key).to_pylist()]
+    return store, rows
+
+
+def test_plan_splits_scenes_into_shards_reading_every_models_shard() -> None:
+    shards = _plan(ScenesStageParams(count=7, scenes_per_shard=3))
+    assert [shard.item.item_id for shard in shards] == ["scenes_000", "scenes_001", "scenes_002"]
+    assert [shard.item.payload["scene_count"] for shard in shards] == [3, 3, 1]
+    assert all(shard.item.inputs == {"models": (MODELS_KEY,)} for shard in shards)
+    assert len({shard.key for shard in shards}) == 3
+    # Another seed is another dataset: every key changes.
+    assert not {shard.key for shard in shards} & {shard.key for shard in _plan(ScenesStageParams(count=7,
+                                                                                  scenes_per_shard=3), seed=1)}
+
+
+def test_rows_follow_the_schema_and_scene_ids(built: tuple[ShardStore, list[dict]]) -> None:
+    _, rows = built
+    assert [row["scene_id"] for row in rows] == [f"scene_{index:06d}" for index in range(4)]
+    for row in rows:
+        assert 3 <= len(row["objects"]) <= 6
+        assert row["settled"]
+        assert row["sim_steps"] > 0
+        assert row["sim_time"] == pytest.approx(row["sim_steps"] / 240.0)
+        assert row["seed"] == attempt_seed(0, row["scene_index"], row["attempts"] - 1)
+        assert sum(json.loads(row["rejections"]).values()) == row["attempts"] - 1
+        categories = {model["model_id"]: model["category"] for model in fixture_models()}
+        assert all(categories[obj["model_id"]] == obj["category"] for obj in row["objects"])
+
+
+def test_objects_pile_up_inside_the_walls_above_the_floor(built: tuple[ShardStore, list[dict]]) -> None:
+    _, rows = built
+    models = {model["model_id"]: model for model in fixture_models()}
+    lying_on = 0
+    for row in rows:
+        for mesh in posed_meshes(row, models):
+            assert np.all(np.abs(mesh.vertices[:, :2]) < 0.5)
+            # Resting contacts sink a fraction of a millimetre into the floor at most.
+            assert mesh.vertices[:, 2].min() > -0.002
+        statistics = scene_statistics(row, models)
+        assert statistics.touching >= 2, row["scene_id"]
+        lying_on += statistics.lying_on
+    assert lying_on >= len(rows)
+
+
+def test_settled_scenes_stay_at_rest_when_simulated_again(built: tuple[ShardStore, list[dict]]) -> None:
+    _, rows = built
+    models = {model["model_id"]: model for model in fixture_models()}
+    params = ScenesStageParams()
+    for row in rows:
+        with physics_client() as client:
+            build_world(client, params)
+            bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
+                                         np.asarray(obj["quaternion"])) for obj in row["objects"]]
+            for _ in range(240):
+                pybullet.stepSimulation(physicsClientId=client)
+            for body, obj in zip(bodies, row["objects"], strict=True):
+                position, quaternion = get_mesh_pose(body)
+                assert np.linalg.norm(position - obj["position"]) < 0.003, row["scene_id"]
+                angle = (Rotation.from_quat(quaternion) * Rotation.from_quat(obj["quaternion"]).inv()).magnitude()
+                assert angle < 0.03, row["scene_id"]
+
+
+def test_same_seed_gives_byte_identical_shards_and_shard_size_changes_no_scene(
+        built: tuple[ShardStore, list[dict]], tmp_path: Path) -> None:
+    store, rows = built
+    params = ScenesStageParams(count=4, scenes_per_shard=2)
+    again = _store(tmp_path / "again")
+    report = run_stage(ScenesStage(), _plan(params), again)
+    for shard in _plan(params):
+        assert again.shard_path("scenes", shard.key).read_bytes() == store.shard_path("scenes", shard.key).read_bytes()
+    # Scene 3 built alone, in a shard of one, in this process.
+    pool = ModelPool(fixture_models())
+    alone = generate_scene(pool, ScenesStageParams(count=4, scenes_per_shard=1), 0, 3).row
+    assert alone == rows[3]
+    other = generate_scene(pool, params, 1, 3).row
+    assert other["objects"] != rows[3]["objects"]
+    assert report.ok
+
+
+def test_the_stored_seed_rebuilds_the_accepted_attempt(built: tuple[ShardStore, list[dict]]) -> None:
+    _, rows = built
+    pool = ModelPool(fixture_models())
+    params = ScenesStageParams()
+    row = rows[1]
+    releases = draw_releases(np.random.default_rng(row["seed"]), pool, params)
+    outcome = simulate_drop(pool, releases, params)
+    np.testing.assert_array_equal(outcome.positions, [obj["position"] for obj in row["objects"]])
+
+
+def test_a_blown_up_simulation_is_rejected_until_the_attempts_run_out(tmp_path: Path) -> None:
+    # Anything falling 30 cm lands at about 2 m/s: a 1 m/s limit calls every attempt blown up.
+    params = ScenesStageParams(count=1, max_linear_speed=1.0, max_attempts=3)
+    result = generate_scene(ModelPool(fixture_models()), params, 0, 0)
+    assert result.row is None
+    assert result.rejections == Counter({"blew_up": 3})
+    store = _store(tmp_path)
+    report = run_stage(ScenesStage(), _plan(params), store)
+    assert report.ok and report.records[0].rows == 0
+    assert "all 3 attempts rejected (blew_up 3)" in report.notes["scenes_000"][0]
+
+
+def test_a_coarse_time_step_lets_objects_fall_through_the_floor_and_is_rejected() -> None:
+    params = ScenesStageParams(timestep=0.05, max_attempts=2)
+    result = generate_scene(ModelPool(fixture_models()), params, 0, 0)
+    assert result.row is None
+    assert result.rejections["fell_through_floor"] >= 1
+
+
+def test_a_rejected_attempt_is_redrawn_with_the_next_seed() -> None:
+    pool = ModelPool(fixture_models())
+    params = ScenesStageParams()
+    calls: list[int] = []
+
+    def draw_once_outside(rng: np.random.Generator, pool: ModelPool, params: ScenesStageParams) -> list[Release]:
+        releases = draw_releases(rng, pool, params)
+        calls.append(len(releases))
+        if len(calls) == 1:  # The first attempt drops its first object beyond the walls.
+            first = releases[0]
+            releases[0] = Release(first.model_index, first.quaternion, np.array([0.7, 0.0]))
+        return releases
+
+    result = generate_scene(pool, params, 5, 2, draw=draw_once_outside)
+    assert result.rejections == Counter({"left_area": 1})
+    assert result.row["attempts"] == 2
+    assert result.row["seed"] == attempt_seed(5, 2, 1)
+    assert json.loads(result.row["rejections"]) == {"left_area": 1}
+
+
+def test_deepest_penetration_measures_overlap() -> None:
+    block = fixture_models()[2]  # 12 x 4 x 4 cm
+    with physics_client() as client:
+        # Dynamic bodies: pybullet finds no contacts between two static ones.
+        first = create_object_body(client, block, np.array([0.0, 0.0, 0.5]))
+        second = create_object_body(client, block, np.array([0.0, 0.0, 0.53]))
+        pybullet.performCollisionDetection(physicsClientId=client)
+        depth, pair = deepest_penetration(client, [first.body_id, second.body_id])
+    # 1 cm of overlap, plus up to a millimetre of pybullet's collision margin on each hull.
+    assert 0.009 < depth < 0.013
+    assert set(pair) == {first.body_id, second.body_id}
+
+
+def test_category_weights_steer_the_draw() -> None:
+    pool = ModelPool(fixture_models())
+    params = ScenesStageParams(category_weights={"hammer": 0.0, "knife": 0.0})
+    rng = np.random.default_rng(0)
+    drawn = {pool.rows[release.model_index]["category"]
+             for _ in range(20) for release in draw_releases(rng, pool, params)}
+    assert drawn == {"screwdriver"}
+    model_balance = ScenesStageParams(balance="model", min_objects=6)
+    counts = Counter(pool.rows[release.model_index]["category"] for _ in range(20)
+                     for release in draw_releases(rng, pool, model_balance))
+    assert set(counts) == {"hammer", "screwdriver", "knife"}
+
+
+def test_bad_parameters_and_empty_models_are_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValidationError, match="below min_objects"):
+        ScenesStageParams(min_objects=4, max_objects=3)
+    with pytest.raises(ValidationError, match="unknown categories"):
+        ScenesStageParams(category_weights={"teapot": 1.0})
+    store = ShardStore(tmp_path)
+    write_models(store, [], MODELS_KEY)
+    shard = _plan(ScenesStageParams(count=1))[0]
+    with pytest.raises(ValueError, match="has no rows"):
+        ScenesStage().build(shard.item, store)
+
+
+def test_statistics_of_a_hand_made_stack() -> None:
+    block = model_row("block", "knife", block_parts())  # 12 x 4 x 4 cm, centred on its mesh origin
+    upright = [0.0, 0.0, 0.0, 1.0]
+    crossed = Rotation.from_euler("z", np.pi / 2).as_quat().tolist()
+    scene = {"objects": [
+        {"model_id": "block", "category": "knife", "position": [0.0, 0.0, 0.02], "quaternion": upright},
+        {"model_id": "block", "category": "knife", "position": [0.0, 0.0, 0.06], "quaternion": crossed},
+        {"model_id": "block", "category": "knife", "position": [0.3, 0.3, 0.02], "quaternion": upright},
+    ]}
+    statistics = scene_statistics(scene, {"block": block})
+    assert statistics.objects == 3
+    assert statistics.touching == 2
+    assert statistics.lying_on == 1
+    assert statistics.off_floor == 1
+    assert statistics.overlapping == 2
+    # The crossing block hides a 4 x 4 cm square of the lower block's 12 x 4 cm: a third.
+    assert statistics.occlusion[0] == pytest.approx(1 / 3, abs=0.05)
+    assert statistics.occlusion[1] == pytest.approx(0.0, abs=0.01)
+    assert statistics.occlusion[2] == pytest.approx(0.0, abs=0.01)
+
+
+def test_summary_and_picture(built: tuple[ShardStore, list[dict]], tmp_path: Path) -> None:
+    store, rows = built
+    records = [store.verify("scenes", key) for key in store.keys_on_disk("scenes")]
+    text = ScenesStage().summary(store, records)
+    assert "scenes: 4 (4 settled)" in text
+    assert "overlapping another" in text
+    out = tmp_path / "scene.png"
+    message = show_scene(store, rows[0]["scene_id"], out)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert str(out) in message
+    with pytest.raises(KeyError, match="no scene"):
+        show_scene(store, "scene_999999", out)
+
