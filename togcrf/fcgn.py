@@ -32,7 +32,7 @@ The model API is that of the TOG models (docs/togcrf.md, the contract).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 
 import torch
 from torchvision.models.detection.image_list import ImageList
@@ -46,8 +46,11 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class FcgnOptions:
-    """Options of the FCGN grasp part (the rest are :class:`togcrf.model.ModelOptions`).
+class FcgnOptions(ModelOptions):
+    """Options of FCGN + Task: those of the TOG models plus the grasp part's.
+
+    A subclass of :class:`togcrf.model.ModelOptions`, so the training code
+    stores every field in checkpoints and the model is rebuilt the same.
 
     Attributes
     ----------
@@ -66,12 +69,12 @@ class FcgnOptions:
     fcgn_blocks: int = 1
     fcgn_candidates_per_box: int = 196
 
-
-def split_options(options: dict) -> tuple[FcgnOptions, ModelOptions]:
-    """FCGN options and TOG model options from one dict of keyword values."""
-    own = {field.name for field in fields(FcgnOptions)}
-    return (FcgnOptions(**{key: value for key, value in options.items() if key in own}),
-            ModelOptions.from_dict({key: value for key, value in options.items() if key not in own}))
+    @staticmethod
+    def from_dict(options: dict) -> FcgnOptions:
+        """Options from keyword values; unknown names raise a TypeError that lists the known ones."""
+        own = {field.name for field in fields(FcgnOptions)} - {field.name for field in fields(ModelOptions)}
+        base = ModelOptions.from_dict({key: value for key, value in options.items() if key not in own})
+        return FcgnOptions(**asdict(base), **{key: value for key, value in options.items() if key in own})
 
 
 def image_anchors(rows: int, columns: int, stride: float, anchor_size: float,
@@ -114,13 +117,12 @@ class FcgnTask(TogDetector):
     """
 
     def __init__(self, backbone: str = "resnet18", **options) -> None:
-        self.fcgn_options, model_options = split_options(options)
-        super().__init__(backbone, crf_terms=None, options=model_options)
-        fcgn = self.fcgn_options
+        fcgn = FcgnOptions.from_dict(options)
+        super().__init__(backbone, crf_terms=None, options=fcgn)
         if not 0 <= fcgn.fcgn_level <= 3:
             raise ValueError(f"fcgn_level must be 0-3 (FPN strides 4-32), got {fcgn.fcgn_level}")
         # The TOG RoI head is replaced: FCGN predicts grasps on the whole image instead.
-        self.grasp_head = GraspHead(FPN_CHANNELS, fcgn.fcgn_channels, model_options.norm, blocks=fcgn.fcgn_blocks)
+        self.grasp_head = GraspHead(FPN_CHANNELS, fcgn.fcgn_channels, fcgn.norm, blocks=fcgn.fcgn_blocks)
         self.stride = 2 ** (fcgn.fcgn_level + 2)
 
     def image_grasps(self, features: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
@@ -130,7 +132,7 @@ class FcgnTask(TogDetector):
         -------
         regression (B, K, 5), stability_logits (B, K, 2), task_log_probs (B, K, 12), anchors (K, 5)
         """
-        level = features[str(self.fcgn_options.fcgn_level)]
+        level = features[str(self.options.fcgn_level)]
         regression, stability, task_logits = self.grasp_head(level)
         anchors = image_anchors(level.shape[2], level.shape[3], self.stride, self.options.grasp_anchor_size,
                                 device=level.device)
@@ -189,7 +191,7 @@ class FcgnTask(TogDetector):
         rectangles = decode(regression.float(), anchors[None])
         stable = stability.float().softmax(dim=-1)[..., 1]
         task_probs = task_log_probs.exp()
-        keep_per_box = self.fcgn_options.fcgn_candidates_per_box
+        keep_per_box = self.options.fcgn_candidates_per_box
         results = []
         for index, detection in enumerate(detections):
             boxes = detection["boxes"].float()

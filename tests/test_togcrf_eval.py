@@ -1,0 +1,114 @@
+"""`togcrf eval`, `togcrf table` and `togcrf figures` on checkpoints made by togcrf.train."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from helpers import write_synthetic_samples
+from typer.testing import CliRunner
+
+from osgd.store import ShardStore
+from osgd.taxonomy import TASKS
+from togcrf.cli import app
+from togcrf.evaluate import TABLE_COLUMNS, evaluate_model, format_table, table_row
+from togcrf.train import TrainConfig, load_checkpoint, train
+
+
+def train_briefly(data_dir: Path, run_dir: Path, model: str) -> Path:
+    """One training step of a ResNet-18 model on two synthetic samples; returns the checkpoint."""
+    train(TrainConfig(data=str(data_dir), out=str(run_dir), pipeline="synthetic", model=model, backbone="resnet18",
+                      epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1, device="cpu",
+                      amp=False, model_options={"detections_per_image": 5, "rpn_post_nms_test": 50}))
+    return run_dir / "checkpoint.pt"
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A data dir of synthetic samples and a briefly trained TOG-CRFs checkpoint."""
+    torch.manual_seed(0)
+    root = tmp_path_factory.mktemp("eval")
+    data_dir = root / "data"
+    write_synthetic_samples(ShardStore(data_dir), 10, test_every=5)  # samples 0 and 5 are test
+    return data_dir, train_briefly(data_dir, root / "run", "tog-crfs")
+
+
+def test_eval_writes_the_table_row(trained: tuple[Path, Path], tmp_path: Path) -> None:
+    data_dir, checkpoint = trained
+    out = tmp_path / "eval.json"
+    result = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data_dir), "--pipeline", "synthetic",
+                                      "--out", str(out), "--speed-images", "1"])
+    assert result.exit_code == 0, result.output
+    assert "TOG-CRFs" in result.output and "mAP-G" in result.output
+    document = json.loads(out.read_text())  # strict JSON: NaN would have been written as null
+    assert document["model"] == "tog-crfs" and document["split"] == "test"
+    assert document["metrics"]["images"] == 2
+    for column in ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10"):
+        value = document["metrics"][column]
+        assert value is None or 0.0 <= value <= 1.0
+    assert document["metrics"]["mAP-G"] <= document["metrics"]["mAP"]
+    assert document["speed"]["fps"] > 0 and document["speed"]["device"] == "cpu"
+    assert set(document["row"]) == set(TABLE_COLUMNS)
+
+    # `table` prints rows side by side from run dirs or evaluation files.
+    second = tmp_path / "run2"
+    second.mkdir()
+    (second / "eval.json").write_text(json.dumps({**document, "model": "tog"}))
+    table_json = tmp_path / "table.json"
+    result = CliRunner().invoke(app, ["table", str(out), str(second), "--out", str(table_json)])
+    assert result.exit_code == 0, result.output
+    lines = result.output.strip().splitlines()
+    assert lines[0].split()[0] == "Algorithm" and lines[2].startswith("TOG-CRFs") and lines[3].startswith("TOG ")
+    assert [row["name"] for row in json.loads(table_json.read_text())["rows"]] == ["TOG-CRFs", "TOG"]
+
+
+def test_eval_errors_name_the_problem(trained: tuple[Path, Path], tmp_path: Path) -> None:
+    data_dir, checkpoint = trained
+    result = CliRunner().invoke(app, ["eval", str(tmp_path / "missing.pt"), "--data", str(data_dir)])
+    assert result.exit_code == 1 and "missing.pt" in result.output
+    result = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data_dir), "--split", "validation"])
+    assert result.exit_code == 1 and "validation" in result.output
+    result = CliRunner().invoke(app, ["table", str(tmp_path)])
+    assert result.exit_code == 1 and "eval.json" in result.output
+
+
+def test_evaluate_model_sees_the_sample_frame(trained: tuple[Path, Path]) -> None:
+    """Evaluating at half the native size gives boxes in the sample's pixels, not the network's."""
+    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+
+    data_dir, checkpoint = trained
+    model, _ = load_checkpoint(checkpoint)
+    model.roi_heads.score_thresh = 0.0
+    samples = list(iter_samples(data_dir, pipeline="synthetic", split="test"))
+    native = evaluate_model(model, samples[:1], None, speed_images=0)
+    half = evaluate_model(model, samples[:1], 64, speed_images=0)
+    assert native["speed"] is None and half["metrics"]["images"] == 1
+    for result in (native, half):
+        assert 0.0 <= result["metrics"]["mAP"] <= 1.0
+
+
+def test_figures_draw_omega_and_mu(trained: tuple[Path, Path], tmp_path: Path) -> None:
+    _, checkpoint = trained
+    result = CliRunner().invoke(app, ["figures", str(checkpoint), "--out", str(tmp_path / "figures")])
+    assert result.exit_code == 0, result.output
+    for name in ("omega.png", "mu.png", "figure5.png"):
+        assert (tmp_path / "figures" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    values = json.loads((tmp_path / "figures" / "crf.json").read_text())
+    assert values["tasks"] == list(TASKS)
+    model, _ = load_checkpoint(checkpoint)
+    assert np.allclose(values["omega"], model.crf.omega.detach().numpy())
+    assert np.asarray(values["mu"]).shape == (12, 12)
+
+
+def test_format_table_and_missing_values() -> None:
+    row = table_row({"metrics": {"mAP": 0.5, "mAP-G": float("nan"), "Acc-T top1": 1.0, "Acc-T top5": 0.25,
+                                 "Acc-T top10": 0.0}, "speed": {"fps": 3.0}})
+    assert row["mAP"] == 50.0 and row["mAP-G"] is None and row["fps"] == 3.0
+    text = format_table([("TOG", row)])
+    cells = text.splitlines()[2].split()
+    assert cells == ["TOG", "50.0", "-", "100.0", "25.0", "0.0", "3.0"]
+    assert not math.isnan(row["Acc-T top1"])
