@@ -14,7 +14,9 @@ Where the numbers come from
   900-1,050, hardwood 700), set so that a tool of the middle length weighs
   about what the real one does (a table knife ~100 g with our 3 mm minimum
   blade thickness, a claw hammer ~0.5 kg, an all-steel wrench or pliers
-  ~0.2-0.3 kg, a pen ~10 g).
+  ~0.2-0.3 kg, a pen ~10 g). Spoons and forks are steel, but our parts are at
+  least 3.2 mm thick (thicker than real cutlery), so their density is lowered
+  to 4,000 to keep the masses near the real 40-60 g.
 - ``friction``: lateral coefficients are our choice from common engineering
   tables (dry steel on steel or rubber-gripped handles 0.5-0.8, smooth
   plastic 0.3-0.5), clamped to what a rubber-padded gripper sees. Rolling
@@ -65,8 +67,8 @@ class CategoryProperties:
 CATEGORY_PROPERTIES: Final[dict[str, CategoryProperties]] = {
     "knife": CategoryProperties((0.16, 0.22), 2500.0, 0.5),
     "screwdriver": CategoryProperties((0.19, 0.29), 1800.0, 0.7),
-    "spoon": CategoryProperties((0.20, 0.22), 7850.0, 0.5),
-    "fork": CategoryProperties((0.19, 0.20), 7850.0, 0.5),
+    "spoon": CategoryProperties((0.20, 0.22), 4000.0, 0.5),
+    "fork": CategoryProperties((0.19, 0.20), 4000.0, 0.5),
     "wrench": CategoryProperties((0.19, 0.30), 7850.0, 0.6),
     "hammer": CategoryProperties((0.21, 0.33), 2800.0, 0.7),
     "pen": CategoryProperties((0.12, 0.15), 900.0, 0.5),
