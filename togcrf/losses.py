@@ -1,0 +1,119 @@
+"""Losses of the grasp detector (REFERENCE section 3, paper Section IV-B/C).
+
+- stability: 2-way cross entropy over the candidates of the foreground RoIs,
+  with all positives and the hardest negatives, 3 negatives per positive
+  (hard negative mining as ROI-GD);
+- regression: smooth L1 on the encoded rectangles of positive candidates;
+- task: cross entropy of the positive candidates' task targets against the
+  log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG).
+
+The RPN and RCNN losses are torchvision's (``togcrf.model``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch.nn import functional
+
+#: Negatives kept per positive candidate (REFERENCE section 3).
+DEFAULT_NEGATIVE_RATIO = 3
+
+
+def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int) -> torch.Tensor:
+    """Positives plus, per row, the ``ratio * positives`` negatives of highest loss.
+
+    A row without positives keeps its ``ratio`` hardest negatives, so that RoIs
+    in which no ground-truth grasp is visible still learn "not stable".
+
+    Parameters
+    ----------
+    losses : (R, K) float
+        Per-candidate loss.
+    positive : (R, K) bool
+    ratio : int
+
+    Returns
+    -------
+    (R, K) bool
+        Candidates that enter the loss.
+    """
+    negative_losses = losses.detach().masked_fill(positive, float("-inf"))
+    order = negative_losses.argsort(dim=1, descending=True)
+    rank = order.argsort(dim=1)
+    negatives_wanted = (positive.sum(dim=1) * ratio).clamp(min=ratio)
+    hard_negatives = (rank < negatives_wanted[:, None]) & ~positive
+    return positive | hard_negatives
+
+
+def grasp_losses(
+    stability_logits: torch.Tensor,
+    regression: torch.Tensor,
+    task_log_probs: torch.Tensor,
+    positive: torch.Tensor,
+    regression_targets: torch.Tensor,
+    task_targets: torch.Tensor,
+    negative_ratio: int = DEFAULT_NEGATIVE_RATIO,
+) -> dict[str, torch.Tensor]:
+    """The three grasp losses over a batch of RoIs.
+
+    Parameters
+    ----------
+    stability_logits : (R, K, 2) float
+        Index 1 = stable.
+    regression : (R, K, 5) float
+        Encoded deltas (``togcrf.anchors.encode``).
+    task_log_probs : (R, K, T) float
+        ``log Q`` per candidate.
+    positive : (R, K) bool
+    regression_targets : (R, K, 5) float
+    task_targets : (R, K, T) float
+        Soft task labels of the positives (rows sum to 1).
+    negative_ratio : int
+
+    Returns
+    -------
+    dict with scalar tensors "grasp_stability", "grasp_regression", "grasp_task".
+    """
+    if positive.numel() == 0:
+        zero = stability_logits.sum() * 0 + regression.sum() * 0 + task_log_probs.sum() * 0
+        return {"grasp_stability": zero, "grasp_regression": zero, "grasp_task": zero}
+    labels = positive.to(torch.int64)
+    per_candidate = functional.cross_entropy(
+        stability_logits.reshape(-1, 2).float(), labels.reshape(-1), reduction="none"
+    ).reshape(labels.shape)
+    selected = hard_negative_selection(per_candidate, positive, negative_ratio)
+    stability = (per_candidate * selected).sum() / selected.sum().clamp(min=1)
+    positives = positive.sum().clamp(min=1)
+    regression_loss = functional.smooth_l1_loss(
+        regression[positive].float(), regression_targets[positive].float(), reduction="sum", beta=1.0
+    ) / positives
+    task_per_candidate = -(task_targets * task_log_probs.float()).sum(dim=-1)
+    task = (task_per_candidate * positive).sum() / positives
+    return {"grasp_stability": stability, "grasp_regression": regression_loss, "grasp_task": task}
+
+
+def top1_task_hits(
+    stability_logits: torch.Tensor,
+    task_log_probs: torch.Tensor,
+    positive: torch.Tensor,
+    task_targets: torch.Tensor,
+) -> tuple[int, int]:
+    """Train Acc-T top-1 counts, measured on the fly on the training RoIs.
+
+    A RoI counts as a hit when its candidate of highest stability is a
+    positive candidate and its most probable task is one of the tasks of the
+    ground-truth grasps it matches (a top-1 candidate that matches no grasp
+    is a miss).
+
+    Returns
+    -------
+    hits, rois : int
+    """
+    if positive.numel() == 0:
+        return 0, 0
+    best = stability_logits.detach().softmax(dim=-1)[..., 1].argmax(dim=1)
+    rows = torch.arange(best.shape[0], device=best.device)
+    predicted_task = task_log_probs.detach()[rows, best].argmax(dim=-1)
+    right = task_targets[rows, best, predicted_task] > 0
+    hits = (positive[rows, best] & right).sum()
+    return int(hits), int(best.shape[0])
