@@ -10,10 +10,10 @@ python-fcl is not available, so a gripper pose collides with the object when
 either
 
 1. a sample of the object's surface lies deeper than ``margin`` inside one
-   of the gripper's boxes (``Gripper.boxes``). The samples are every vertex,
-   one point per face and one more per ``spacing**2`` of area, so any corner
-   and any piece of surface larger than about ``spacing`` that enters a box
-   deeper than ``margin`` is found; or
+   of the gripper's boxes (``Gripper.boxes``). The samples are every vertex
+   plus random points, one per ``spacing**2`` of area, so any corner and any
+   piece of surface larger than about ``spacing`` that enters a box deeper
+   than ``margin`` is found; or
 2. the centre of a box lies deeper than ``margin`` inside one of the model's
    convex parts (the collision compound the check stage simulates), which
    catches a box buried in the object with no surface crossing it.
@@ -143,7 +143,7 @@ class ObjectSurface:
         rng: np.random.Generator,
         max_points: int,
     ) -> ObjectSurface:
-        """Every vertex, one random point per face and one per ``spacing**2`` of area.
+        """Every vertex plus random points, one per ``spacing**2`` of area.
 
         Parameters
         ----------
@@ -160,9 +160,11 @@ class ObjectSurface:
         """
         areas = mesh.area_faces
         total = float(areas.sum())
-        if total > 0 and len(areas) + total / spacing**2 > max_points:
-            spacing = float(np.sqrt(total / max(max_points - len(areas), 1)))
-        counts = 1 + np.floor(areas / spacing**2).astype(np.int64)
+        if total > 0 and len(mesh.vertices) + total / spacing**2 > max_points:
+            spacing = float(np.sqrt(total / max(max_points - len(mesh.vertices), 1)))
+        # Rounded at random so that the expected count is area / spacing**2
+        # on every face; small faces are covered by their vertices.
+        counts = np.floor(areas / spacing**2 + rng.random(len(areas))).astype(np.int64)
         faces = np.repeat(np.arange(len(areas)), counts)
         # Uniform points in each triangle: fold the unit square onto it.
         first, second = rng.random((2, len(faces)))
@@ -177,6 +179,9 @@ class ObjectSurface:
         vertex_faces = np.full(len(mesh.vertices), -1, dtype=np.int64)
         vertex_faces[mesh.faces[::-1].ravel()] = np.repeat(np.arange(len(mesh.faces))[::-1], 3)
         used = np.flatnonzero(vertex_faces >= 0)
+        # OBJ files often repeat a vertex per face; one sample per position is enough.
+        _, first_use = np.unique(np.asarray(mesh.vertices)[used], axis=0, return_index=True)
+        used = used[np.sort(first_use)]
         points = np.concatenate([points, np.asarray(mesh.vertices)[used]])
         faces = np.concatenate([faces, vertex_faces[used]])
         parts = np.asarray(face_parts, dtype=np.int64)[faces]
@@ -252,7 +257,7 @@ class GripperCollision:
         centre : (3,) float
             Grasp centre, object frame, m.
         rotations : (K, 3, 3) float
-            From :func:`gripper_rotations`.
+            From :func:`gripper_rotations`: one closing axis, K approaches.
         width : float
             Opening, m.
         nearby : (N,) int
@@ -264,10 +269,17 @@ class GripperCollision:
         (K,) bool
         """
         boxes = self.gripper.boxes(width)
-        local = local_points(self.surface.points[nearby], centre, rotations)
+        offsets = self.surface.points[nearby] - centre
+        # The closing axis is the same for every pose: the x coordinate, and
+        # with it which samples lie in each box's slab, is computed once.
+        along = offsets @ rotations[0][:, 0]
         hit = np.zeros(len(rotations), dtype=bool)
         for _name, box_centre, half in boxes:
-            inside = np.all(np.abs(local - box_centre) < half - self.margin, axis=-1)
+            slab = offsets[np.abs(along - box_centre[0]) < half[0] - self.margin]
+            if len(slab) == 0:
+                continue
+            across = np.matmul(slab[None], rotations[:, :, 1:])  # (K, S, 2): y and z
+            inside = np.all(np.abs(across - box_centre[1:]) < half[1:] - self.margin, axis=-1)
             hit |= inside.any(axis=-1)
         if self.planes:
             box_centres = np.stack([box_centre for _name, box_centre, _half in boxes])

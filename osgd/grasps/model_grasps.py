@@ -293,7 +293,8 @@ class GraspAnnotator:
         closing_axis = (contact_b - contact_a) / distance
         width = distance + self.gripper.clearance
         rotations = gripper_rotations(closing_axis, approach_directions(closing_axis, self.params.approach_count))
-        nearby = self.surface.near(centre, max(self.collision.reach(width), self._label_reach))
+        reach = self.collision.reach(width) if task is not None else max(self.collision.reach(width), self._label_reach)
+        nearby = self.surface.near(centre, reach)
         free = self.collision.free(centre, rotations, width, nearby)
         if not free.any():
             return False
