@@ -171,20 +171,31 @@ def wrap_half_turn(angle: np.ndarray) -> np.ndarray:
 
 
 def contacts_visible(
-    grasps_camera: GraspSet, depth: np.ndarray, intrinsics: CameraIntrinsics, tolerance: float
+    grasps_camera: GraspSet,
+    depth: np.ndarray,
+    mask: np.ndarray,
+    label: int,
+    intrinsics: CameraIntrinsics,
+    tolerance: float,
 ) -> np.ndarray:
-    """Whether both contacts of each grasp are seen in a depth map.
+    """Whether neither contact of each grasp is hidden behind another object.
 
-    A contact is seen when it projects into the image and the rendered
-    depth at its (nearest) pixel is no more than ``tolerance`` in front of
-    the contact's own depth; a pixel without a reading hides nothing.
+    A contact is hidden when it projects outside the image, or when its
+    (nearest) pixel shows another object (mask value neither 0 nor
+    ``label``) more than ``tolerance`` in front of the contact. The grasped
+    object itself hides nothing: a contact on the far side of a tall object
+    is normal for a grasp from the side, and the gripper reaches it in 3-D.
 
     Parameters
     ----------
     grasps_camera : GraspSet
         Camera frame.
     depth : (H, W) float
-        Clean rendered depth, metres, 0 = no reading.
+        Clean rendered depth, metres.
+    mask : (H, W) int
+        Instance mask, 0 background, ``object_index + 1`` elsewhere.
+    label : int
+        Mask value of the grasped object.
     tolerance : float
         Metres.
 
@@ -200,9 +211,14 @@ def contacts_visible(
         in_front = points[:, 2] > 1e-6
         pixels = np.rint(intrinsics.project(np.where(in_front[:, None], points, 1.0))).astype(np.int64)
         inside = in_front & (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
-        rendered = np.zeros(len(points))
-        rendered[inside] = depth[pixels[inside, 1], pixels[inside, 0]]
-        return inside & ((rendered <= 0) | (rendered >= points[:, 2] - tolerance))
+        rows, columns = pixels[inside, 1], pixels[inside, 0]
+        covered = np.zeros(len(points), dtype=bool)
+        covered[inside] = (
+            (mask[rows, columns] != 0)
+            & (mask[rows, columns] != label)
+            & (depth[rows, columns] < points[inside, 2] - tolerance)
+        )
+        return inside & ~covered
 
     return seen(grasps_camera.contacts_a) & seen(grasps_camera.contacts_b)
 

@@ -100,7 +100,7 @@ class SamplesStageParams(StageParams):
     nms_radius: float = Field(
         0.015, ge=0, description="NMS radius on 3-D grasp centres, m (original: 0.05 model units, ~1-1.5 cm).")
     contact_tolerance: float = Field(
-        0.01, ge=0, description="A contact is hidden when the rendered depth is this much in front of it, m.")
+        0.01, ge=0, description="A contact is hidden when another object is this much in front of it, m.")
     collision_tolerance: float = Field(
         0.001, ge=0, description="Gripper penetration into another object that still counts as free, m.")
 
@@ -233,7 +233,7 @@ def render_sample(
             usable = (
                 (angles >= params.min_angle_to_optical_axis - 1e-9)
                 & centres_in_image(camera, intrinsics)
-                & contacts_visible(camera, depth_clean, intrinsics, params.contact_tolerance)
+                & contacts_visible(camera, depth_clean, rendering.mask, index + 1, intrinsics, params.contact_tolerance)
             )
             candidates = np.nonzero(usable)[0]
             if not len(candidates):
