@@ -1,0 +1,102 @@
+"""Benchmark of the scenes stage: scenes per second per core, steps, memory.
+
+Runs in one process (one core): the same scenes are dropped twice, once
+stopping at rest (the stage's rule) and once for a fixed 3 s of simulated
+time after the last release (what the original generator did, REFERENCE
+section 2), and the ratio is printed. Target (issue #6): under 0.5 s per
+scene per core on average, so that the paper's 8,000 scenes take under 30
+minutes on 2 cores.
+
+Usage::
+
+    python benchmarks/bench_scenes.py                      # test fixture models
+    python benchmarks/bench_scenes.py --data-dir DATA      # every models row under DATA
+    python benchmarks/bench_scenes.py --scenes 40 --seed 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene
+from osgd.scenes.params import ScenesStageParams
+from osgd.store import ShardStore
+
+
+def load_pool(data_dir: Path | None) -> tuple[ModelPool, str]:
+    """The models of a data dir, or the test fixtures when none is given."""
+    if data_dir is None:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+        from helpers import fixture_models  # noqa: PLC0415
+
+        return ModelPool(fixture_models()), "test fixtures (hammer, screwdriver, block)"
+    store = ShardStore(data_dir)
+    keys = store.keys_on_disk("models")
+    table = store.read_many("models", keys, MODEL_COLUMNS)
+    return ModelPool(table.to_pylist()), f"{table.num_rows} models from {data_dir}"
+
+
+def run(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> dict[str, float]:
+    """Drop ``scenes`` scenes serially; times in wall seconds, steps simulated."""
+    seconds, steps, sim_times, attempts = [], [], [], []
+    rejections: Counter = Counter()
+    for index in range(scenes):
+        start = time.perf_counter()
+        result = generate_scene(pool, params, seed, index)
+        seconds.append(time.perf_counter() - start)
+        rejections.update(result.rejections)
+        if result.row is not None:
+            steps.append(result.row["sim_steps"])
+            sim_times.append(result.row["sim_time"])
+            attempts.append(result.row["attempts"])
+    return {
+        "seconds_per_scene": float(np.mean(seconds)),
+        "median_seconds": float(np.median(seconds)),
+        "p90_seconds": float(np.percentile(seconds, 90)),
+        "steps_per_scene": float(np.mean(steps)) if steps else 0.0,
+        "sim_time": float(np.mean(sim_times)) if sim_times else 0.0,
+        "attempts": float(np.mean(attempts)) if attempts else 0.0,
+        "accepted": float(len(steps)),
+        "rejections": dict(sorted(rejections.items())),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data-dir", type=Path, default=None, help="data dir with a models table")
+    parser.add_argument("--scenes", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0)
+    arguments = parser.parse_args()
+    pool, description = load_pool(arguments.data_dir)
+    print(f"models: {description}; {arguments.scenes} scenes, seed {arguments.seed}, one process")
+
+    at_rest = run(pool, ScenesStageParams(), arguments.seed, arguments.scenes)
+    fixed = run(pool, ScenesStageParams(fixed_sim_time=3.0, reject_unsettled=False), arguments.seed,
+                arguments.scenes)
+    for label, figures in (("until at rest", at_rest), ("fixed 3 s after the last release", fixed)):
+        print(
+            f"{label:34s}: {figures['seconds_per_scene']:.3f} s per scene per core "
+            f"(median {figures['median_seconds']:.3f}, p90 {figures['p90_seconds']:.3f}), "
+            f"{1 / figures['seconds_per_scene']:.2f} scenes/s per core, "
+            f"{figures['steps_per_scene']:.0f} steps ({figures['sim_time']:.2f} s simulated) per accepted scene, "
+            f"{figures['attempts']:.2f} attempts, {figures['accepted']:.0f} accepted, "
+            f"rejections {figures['rejections']}"
+        )
+    ratio = at_rest["seconds_per_scene"] / fixed["seconds_per_scene"]
+    print(f"ratio at rest / fixed 3 s (wall time per scene): {ratio:.2f}")
+    hours_8000 = 8000 * at_rest["seconds_per_scene"] / 2 / 3600
+    print(f"8,000 scenes on 2 cores: about {hours_8000 * 60:.1f} minutes (target: under 30)")
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    print(f"peak memory: {own:.0f} MiB (this process), {children:.0f} MiB (children)")
+
+
+if __name__ == "__main__":
+    main()
