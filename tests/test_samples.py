@@ -269,9 +269,10 @@ def test_rectangles_lie_on_their_objects(built):
             assert x1 - 1 <= x <= x2 + 1 and y1 - 1 <= y <= y2 + 1
             assert sample.mask[round(y), round(x)] == sample.object_indices[owner] + 1
             # Every fixture grasp lies flat, about 0.7-0.75 m from the camera:
-            # h is the opening and w the 2 cm finger seen from there.
+            # h is the opening and w the 2 cm finger seen from there (the
+            # camera tilt leaves a little perspective stretch on h).
             expected = KINECT_V2.fx / grasp["position"][2]
-            assert grasp["width"] * expected * 0.95 < h <= grasp["width"] * expected * 1.001
+            assert grasp["width"] * expected * 0.95 < h < grasp["width"] * expected * 1.03
             assert w == pytest.approx(0.02 * expected, rel=0.01)
 
 
