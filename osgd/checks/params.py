@@ -33,7 +33,12 @@ class ChecksStageParams(StageParams):
         "leaves the models table's friction in charge",
     )
     palm_mass: float = Field(0.5, gt=0.0, description="mass of the palm, kg")
-    finger_mass: float = Field(0.02, gt=0.0, description="mass of each finger, kg")
+    finger_mass: float = Field(
+        0.1, gt=0.0,
+        description="mass of each finger, kg; heavier than a real pad (~20 g) because with light fingers the "
+        "solver does not bring the motor to its force limit (20 g: 28 N of 40 N at 30 iterations; 50 g and "
+        "more: the full 40 N, docs/checks.md)",
+    )
     grip_force: float | None = Field(
         None, gt=0.0,
         description="force limit of each finger, N; None takes the gripper's grip_force (40 N, osgd.gripper)",
