@@ -10,7 +10,7 @@ DATA_DIR ?= data
 PIPELINE ?= pipelines/default.toml
 WORKERS ?=
 
-.PHONY: help install system-deps test test-slow test-all lint dataset golden bench clean-data table
+.PHONY: help install system-deps test test-slow test-all lint dataset golden golden-update bench clean-data table
 
 help:
 	@echo "make test       install into .venv and run the tests (the CI entry point)"
@@ -55,6 +55,13 @@ dataset: install
 
 golden: install
 	$(BIN)/python -m pytest -q -m '' tests/test_golden.py
+
+# Rebuild the golden pipeline and rewrite its committed manifest (after an intended change).
+golden-update: install
+	rm -rf .golden-build
+	$(BIN)/osgd --data-dir .golden-build --workers 2 run pipelines/golden.toml
+	cp .golden-build/manifests/golden.json data/manifests/golden.json
+	rm -rf .golden-build
 
 bench: install
 	@for script in benchmarks/bench_*.py; do echo "== $$script"; $(BIN)/python $$script || exit 1; done

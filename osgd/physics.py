@@ -149,12 +149,12 @@ def create_object_body(
     -------
     ObjectBody
     """
-    parts = [_cell_mesh(part["vertices"], part["faces"]) for part in model["convex_parts"]]
-    if not parts:
+    if not len(model["convex_parts"]):
         raise ValueError(f"model {model['model_id']}: no convex parts to collide with")
+    # One compound file per model and process; later bodies of the model reuse it.
     obj_path = _obj_folder() / f"{model['model_id']}.obj"
     if not obj_path.exists():
-        write_compound_obj(parts, obj_path)
+        write_compound_obj([_cell_mesh(part["vertices"], part["faces"]) for part in model["convex_parts"]], obj_path)
     shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(obj_path), physicsClientId=client)
     if shape < 0:
         raise RuntimeError(f"model {model['model_id']}: pybullet could not create its collision shape")
