@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from osgd.grasps.geometry import perpendicular_basis, unit
+from osgd.grasps.geometry import unit
 
 #: Rays start this far inside the surface so they do not hit their own face
 #: (embree works in float32: about 1e-7 relative, 1e-5 m on a 0.3 m model).
@@ -57,12 +57,14 @@ def _directions_in_cones(normals: np.ndarray, half_angle: float, rng: np.random.
     cos_theta = 1 - rng.random(len(normals)) * (1 - np.cos(half_angle))
     sin_theta = np.sqrt(np.clip(1 - cos_theta**2, 0, None))
     phi = rng.random(len(normals)) * 2 * np.pi
-    directions = np.empty_like(normals)
-    for index, axis in enumerate(-normals):
-        u, v = perpendicular_basis(axis)
-        directions[index] = cos_theta[index] * axis + sin_theta[index] * (
-            np.cos(phi[index]) * u + np.sin(phi[index]) * v
-        )
+    axes = -normals
+    # A perpendicular basis per row, from the object axis least aligned with it.
+    reference = np.eye(3)[np.argmin(np.abs(axes), axis=1)]
+    u = unit(reference - np.einsum("ij,ij->i", reference, axes)[:, None] * axes)
+    v = np.cross(axes, u)
+    directions = cos_theta[:, None] * axes + sin_theta[:, None] * (
+        np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
+    )
     return directions
 
 
