@@ -47,15 +47,45 @@ def task_colours() -> dict[str, tuple[float, float, float, float]]:
     return {task: palette((2 * TASK_INDEX[task]) % 20 + (TASK_INDEX[task] >= 10)) for task in TASKS}
 
 
-def draw_sample(sample: Sample, axes, noisy: bool = True) -> None:
-    """Draw a sample onto matplotlib axes (depth, boxes, rectangles, legend)."""
+def view_window(sample: Sample, grow: float = 1.3, margin: int = 16, minimum: int = 160) -> tuple[int, int, int, int]:
+    """The part of the image worth showing: the union of the boxes, grown.
+
+    Like the original OSGD crops (REFERENCE section 2): the union of the
+    object boxes grown by ``grow`` about its centre plus ``margin`` pixels,
+    at least ``minimum`` pixels across, clipped to the image.
+
+    Returns
+    -------
+    left, top, right, bottom : int
+        Inclusive pixel bounds; the whole image when there is no box.
+    """
+    height, width = sample.depth.shape
+    if not len(sample.boxes):
+        return 0, 0, width - 1, height - 1
+    low = sample.boxes[:, :2].min(axis=0)
+    high = sample.boxes[:, 2:].max(axis=0)
+    centre = (low + high) / 2
+    half = np.maximum((high - low) * grow / 2 + margin, minimum / 2)
+    left, top = np.maximum(np.floor(centre - half), 0).astype(int)
+    right, bottom = np.minimum(np.ceil(centre + half), [width - 1, height - 1]).astype(int)
+    return int(left), int(top), int(right), int(bottom)
+
+
+def draw_sample(sample: Sample, axes, noisy: bool = True, crop: bool = True) -> None:
+    """Draw a sample onto matplotlib axes (depth, boxes, rectangles, legend).
+
+    ``crop`` shows only :func:`view_window`; the colour map then spans the
+    depths seen there.
+    """
     from matplotlib.lines import Line2D  # noqa: PLC0415
     from matplotlib.patches import Rectangle  # noqa: PLC0415
 
     depth = sample.depth if noisy else sample.depth_clean
     shown = np.where(depth > 0, depth, np.nan)
-    finite = shown[np.isfinite(shown)]
-    low, high = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
+    left, top, right, bottom = view_window(sample) if crop else (0, 0, depth.shape[1] - 1, depth.shape[0] - 1)
+    window = shown[top : bottom + 1, left : right + 1]
+    finite = window[np.isfinite(window)]
+    low, high = (np.percentile(finite, [0.5, 99.5]) if finite.size else (0.0, 1.0))
     image = axes.imshow(shown, cmap="viridis_r", vmin=low, vmax=high, interpolation="nearest")
     axes.figure.colorbar(image, ax=axes, fraction=0.035, pad=0.01, label="depth (m)")
     for category, box in zip(sample.categories, sample.boxes, strict=True):
@@ -79,13 +109,13 @@ def draw_sample(sample: Sample, axes, noisy: bool = True) -> None:
                     title_fontsize=8, frameon=False)
     axes.set_title(f"{sample.sample_id} ({sample.split}): {len(sample.boxes)} objects, "
                    f"{len(sample.grasp_rectangles)} grasps", fontsize=9)
-    axes.set_xlim(-0.5, depth.shape[1] - 0.5)
-    axes.set_ylim(depth.shape[0] - 0.5, -0.5)
+    axes.set_xlim(left - 0.5, right + 0.5)
+    axes.set_ylim(bottom + 0.5, top - 0.5)
     axes.set_xticks([])
     axes.set_yticks([])
 
 
-def show_sample(store: ShardStore, sample_id: str, out: str | Path) -> str:
+def show_sample(store: ShardStore, sample_id: str, out: str | Path, crop: bool = True) -> str:
     """Write a picture of one sample (noisy depth, boxes, grasp rectangles) as PNG.
 
     Parameters
@@ -95,6 +125,8 @@ def show_sample(store: ShardStore, sample_id: str, out: str | Path) -> str:
         E.g. ``scene_000042_view0``.
     out : path
         PNG file to write.
+    crop : bool
+        Show only the objects' surroundings (:func:`view_window`).
 
     Returns
     -------
@@ -112,9 +144,9 @@ def show_sample(store: ShardStore, sample_id: str, out: str | Path) -> str:
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     sample = find_sample(store, sample_id)
-    figure, axes = plt.subplots(figsize=(9.0, 6.0), dpi=120)
+    figure, axes = plt.subplots(figsize=(9.0, 6.5), dpi=120)
     try:
-        draw_sample(sample, axes)
+        draw_sample(sample, axes, crop=crop)
         figure.tight_layout()
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
