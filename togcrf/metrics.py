@@ -135,6 +135,14 @@ def rectangle_jaccard(first: np.ndarray, second: np.ndarray) -> np.ndarray:
         return np.where(union > 0, intersection / union, 0.0)
 
 
+def _paired_jaccard(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Jaccard index of rectangle ``first[i]`` with ``second[i]``: (P, 5), (P, 5) -> (P,)."""
+    intersection = shapely.area(shapely.intersection(_polygons(first), _polygons(second)))
+    union = np.abs(first[:, 2] * first[:, 3]) + np.abs(second[:, 2] * second[:, 3]) - intersection
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, intersection / union, 0.0)
+
+
 def angle_difference(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     """Smallest difference of grasp angles, modulo 180 degrees.
 
@@ -169,14 +177,13 @@ def grasp_match_matrix(detected: np.ndarray, ground_truth: np.ndarray) -> np.nda
     detected = np.asarray(detected, dtype=np.float64).reshape(-1, 5)
     ground_truth = np.asarray(ground_truth, dtype=np.float64).reshape(-1, 5)
     angles_close = angle_difference(detected[:, None, 4], ground_truth[None, :, 4]) < GRASP_ANGLE_TOLERANCE
+    # Only pairs close in angle and in position need the (costly) polygon intersection.
+    reach = (np.hypot(detected[:, 2], detected[:, 3])[:, None] + np.hypot(ground_truth[:, 2], ground_truth[:, 3])) / 2
+    centre_distance = np.linalg.norm(detected[:, None, :2] - ground_truth[None, :, :2], axis=-1)
+    rows, columns = np.nonzero(angles_close & (centre_distance < reach))
     jaccard = np.zeros(angles_close.shape)
-    pairs = np.nonzero(angles_close)
-    if len(pairs[0]):
-        # Only pairs close in angle need the (costly) polygon intersection.
-        rows, row_index = np.unique(pairs[0], return_inverse=True)
-        columns, column_index = np.unique(pairs[1], return_inverse=True)
-        sub = rectangle_jaccard(detected[rows], ground_truth[columns])
-        jaccard[pairs] = sub[row_index, column_index]
+    if len(rows):
+        jaccard[rows, columns] = _paired_jaccard(detected[rows], ground_truth[columns])
     return angles_close & (jaccard > GRASP_JACCARD_THRESHOLD)
 
 
@@ -424,12 +431,13 @@ class TableTwoEvaluator:
         grasp_objects = np.asarray(truth.grasp_objects, dtype=np.int64).reshape(-1)
         truth_grasps = np.asarray(truth.grasp_rectangles, dtype=np.float64).reshape(-1, 5)
         allowed = np.zeros((len(categories), len(truth_categories)), dtype=bool)
-        for detection in range(len(categories)):
-            top = detections.top_grasp(detection)
-            if top is None or len(truth_grasps) == 0:
-                continue
-            matches = grasp_match_matrix(top[None], truth_grasps)[0]
-            allowed[detection, grasp_objects[matches]] = True
+        tops = [(detection, detections.top_grasp(detection)) for detection in range(len(categories))]
+        tops = [(detection, top) for detection, top in tops if top is not None]
+        if tops and len(truth_grasps):
+            # One (detections x grasps) match, then per detection the objects owning a matched grasp.
+            matches = grasp_match_matrix(np.stack([top for _, top in tops]), truth_grasps)
+            rows, columns = np.nonzero(matches)
+            allowed[np.array([detection for detection, _ in tops])[rows], grasp_objects[columns]] = True
         grasp_match = match_detections(detections.boxes, categories, detections.scores, truth.boxes,
                                        truth_categories, allowed=allowed)
         self._scores.append(np.asarray(detections.scores, dtype=np.float64).reshape(-1))

@@ -1,0 +1,193 @@
+"""Reproduce Table II: train and evaluate the five models on one data dir.
+
+``togcrf reproduce --data DIR --out runs/table2`` (``make table``) trains
+FCGN + Task, TOG, TOG-CRFs omega, TOG-CRFs mu and TOG-CRFs with the same
+options, evaluates each on the test split, and writes:
+
+- ``OUT/<model>/`` the run dir of each model (checkpoint.pt, metrics.csv,
+  config.json, eval.json);
+- ``OUT/table2.txt`` and ``OUT/table2.json``: the table;
+- ``OUT/figures/``: figure 5 (omega and mu of TOG-CRFs);
+- ``OUT/prediction.png``: a figure-7-like picture of TOG-CRFs on the first
+  test sample.
+
+Scales: ``--scale paper`` is the paper's setting (ResNet-101, 10 epochs,
+native image size, every sample); ``--scale small`` runs end to end on a CPU
+in minutes (ResNet-18, 2 epochs, images of at most 256 px, 16 training and
+8 test samples); ``auto`` (the default) takes ``paper`` where CUDA is
+available and ``small`` otherwise. Every option given explicitly overrides
+the scale. A model whose run dir already holds a checkpoint of all epochs
+is not trained again (interrupted runs resume), so re-running only
+re-evaluates.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Annotated, Any
+
+import torch
+import typer
+
+from togcrf.evaluate import EVAL_FILE, evaluate_checkpoint, format_table, row_name, write_json
+
+log = logging.getLogger(__name__)
+
+#: The models of Table II, in its order (``togcrf.model.MODEL_NAMES``).
+TABLE_MODELS = ("fcgn-task", "tog", "tog-crfs-omega", "tog-crfs-mu", "tog-crfs")
+
+
+@dataclass(frozen=True)
+class Scale:
+    """Training and evaluation size of a reproduction.
+
+    Attributes
+    ----------
+    backbone : str
+    epochs : int
+    image_size : int or None
+        Longer image side fed to the network; None keeps the native size.
+    max_samples : int or None
+        Training samples used (None: all).
+    eval_max_samples : int or None
+        Test samples evaluated (None: all).
+    batch_size : int
+    """
+
+    backbone: str
+    epochs: int
+    image_size: int | None
+    max_samples: int | None
+    eval_max_samples: int | None
+    batch_size: int
+
+
+#: The paper's setting (Section V: 10 epochs; Section IV-B: ResNet-101).
+PAPER_SCALE = Scale("resnet101", 10, None, None, None, 2)
+#: Our choice for a CPU: minutes per model on 2 cores.
+SMALL_SCALE = Scale("resnet18", 2, 256, 16, 8, 2)
+
+
+def resolve_scale(name: str) -> Scale:
+    """The scale named ``paper``, ``small`` or ``auto`` (paper with CUDA, else small)."""
+    if name == "auto":
+        name = "paper" if torch.cuda.is_available() else "small"
+    scales = {"paper": PAPER_SCALE, "small": SMALL_SCALE}
+    if name not in scales:
+        raise ValueError(f"--scale {name!r}: expected auto, paper or small")
+    return scales[name]
+
+
+def _trained_epochs(checkpoint: Path) -> int:
+    if not checkpoint.is_file():
+        return 0
+    return int(torch.load(checkpoint, map_location="cpu", weights_only=False).get("epoch") or 0)
+
+
+def reproduce(
+    data_dir: Path,
+    out_dir: Path,
+    scale: Scale,
+    *,
+    pipeline: str | None = None,
+    models: tuple[str, ...] = TABLE_MODELS,
+    device: str = "auto",
+    seed: int = 0,
+    speed_images: int = 10,
+) -> dict[str, Any]:
+    """Train and evaluate the models; write the table, figure 5 and a prediction picture.
+
+    Returns
+    -------
+    dict
+        ``rows``: list of (name, Table II row); ``table``: the text.
+    """
+    from togcrf.figures import crf_matrices, draw_crf_figures  # noqa: PLC0415
+    from togcrf.train import TrainConfig, load_checkpoint, resolve_device, train  # noqa: PLC0415
+
+    eval_device = str(resolve_device(device))
+    rows = []
+    for model in models:
+        run_dir = out_dir / model
+        checkpoint = run_dir / "checkpoint.pt"
+        done = _trained_epochs(checkpoint)
+        if done < scale.epochs:
+            log.info("training %s (%d of %d epochs done)", model, done, scale.epochs)
+            train(TrainConfig(data=str(data_dir), out=str(run_dir), pipeline=pipeline, model=model,
+                              backbone=scale.backbone, epochs=scale.epochs, batch_size=scale.batch_size,
+                              image_size=scale.image_size, max_samples=scale.max_samples, device=device,
+                              seed=seed, resume=done > 0))
+        document = evaluate_checkpoint(checkpoint, data_dir, pipeline=pipeline, split="test", device=eval_device,
+                                       max_samples=scale.eval_max_samples, speed_images=speed_images)
+        write_json(run_dir / EVAL_FILE, document)
+        rows.append((row_name(document), document["row"]))
+        log.info("%s: %s", model, document["row"])
+    table = format_table(rows)
+    (out_dir / "table2.txt").write_text(table + "\n")
+    write_json(out_dir / "table2.json", {"data": str(data_dir), "pipeline": pipeline, "device": eval_device,
+                                         "scale": scale.__dict__, "rows": [{"name": name, **row}
+                                                                           for name, row in rows]})
+    if "tog-crfs" in models:
+        model, _ = load_checkpoint(out_dir / "tog-crfs" / "checkpoint.pt")
+        draw_crf_figures(crf_matrices(model), out_dir / "figures")
+        _draw_first_test_sample(out_dir / "tog-crfs" / "checkpoint.pt", data_dir, pipeline, out_dir / "prediction.png")
+    return {"rows": rows, "table": table}
+
+
+def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | None, path: Path) -> None:
+    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from togcrf.predict import draw_prediction, keep_confident, predict_depth  # noqa: PLC0415
+    from togcrf.train import load_checkpoint  # noqa: PLC0415
+
+    model, config = load_checkpoint(checkpoint)
+    sample = next(iter_samples(data_dir, pipeline=pipeline, split="test"), None)
+    if sample is None:
+        return
+    detections = keep_confident(predict_depth(model, sample.depth, config.get("image_size")), 0.5)
+    draw_prediction(sample.depth, detections, path)
+
+
+def reproduce_command(
+    *,
+    data: Annotated[Path, typer.Option("--data", help="Data dir with samples shards (train and test splits).")],
+    out: Annotated[Path, typer.Option("--out", help="Folder for the five run dirs, the table and figures.")],
+    pipeline: Annotated[str | None, typer.Option(help="Use the shards of this pipeline's manifest.")] = None,
+    scale: Annotated[str, typer.Option(help="auto, paper or small (see `togcrf.reproduce`).")] = "auto",
+    models: Annotated[str, typer.Option(help="Comma-separated subset of the five models.")] = ",".join(TABLE_MODELS),
+    epochs: Annotated[int | None, typer.Option(help="Override the scale's epochs.")] = None,
+    backbone: Annotated[str | None, typer.Option(help="Override the scale's backbone.")] = None,
+    image_size: Annotated[int | None, typer.Option(help="Override the scale's image size (0: native).")] = None,
+    max_samples: Annotated[int | None, typer.Option(help="Override the training samples (0: all).")] = None,
+    eval_max_samples: Annotated[int | None, typer.Option(help="Override the test samples (0: all).")] = None,
+    batch_size: Annotated[int | None, typer.Option(help="Override the batch size.")] = None,
+    device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
+    seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
+    speed_images: Annotated[int, typer.Option(help="Images timed for the speed column.")] = 10,
+) -> None:
+    """Train and evaluate the five models of Table II; print and write the table."""
+    try:
+        chosen = resolve_scale(scale)
+        overrides = {"epochs": epochs, "backbone": backbone, "batch_size": batch_size}
+        chosen = replace(chosen, **{key: value for key, value in overrides.items() if value is not None})
+        for name, value in (("image_size", image_size), ("max_samples", max_samples),
+                            ("eval_max_samples", eval_max_samples)):
+            if value is not None:
+                chosen = replace(chosen, **{name: value or None})
+        selected = tuple(name.strip() for name in models.split(",") if name.strip())
+        unknown = [name for name in selected if name not in TABLE_MODELS]
+        if unknown or not selected:
+            raise ValueError(f"--models {models!r}: expected names among {TABLE_MODELS}")
+        result = reproduce(data, out, chosen, pipeline=pipeline, models=selected, device=device, seed=seed,
+                           speed_images=speed_images)
+    except (FileNotFoundError, ValueError) as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(1) from error
+    typer.echo(result["table"])
+    typer.echo(f"scale {chosen}; written to {out}/table2.txt, table2.json, figures/, prediction.png")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``reproduce`` to the ``togcrf`` command line."""
+    app.command("reproduce")(reproduce_command)
