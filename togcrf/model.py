@@ -29,6 +29,7 @@ candidates.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import asdict, dataclass, fields
 
 import torch
@@ -41,6 +42,7 @@ from torchvision.models.detection.image_list import ImageList
 from torchvision.models.detection.roi_heads import RoIHeads, fastrcnn_loss
 from torchvision.models.detection.rpn import RegionProposalNetwork, RPNHead
 from torchvision.ops import MultiScaleRoIAlign
+from torchvision.ops.poolers import initLevelMapper
 
 from osgd.taxonomy import CATEGORIES, TASKS
 from togcrf.anchors import ANCHOR_ANGLES, DEFAULT_ANCHOR_SIZE, GRID, decode, match, roi_anchors
@@ -65,6 +67,9 @@ BACKBONES = ("resnet18", "resnet34", "resnet50", "resnet101")
 
 #: FPN output channels (torchvision).
 FPN_CHANNELS = 256
+
+#: Strides of the FPN maps "0"-"3" that RoIs are pooled from (ResNet C2-C5).
+FPN_STRIDES = (4, 8, 16, 32)
 
 #: Images are padded to a multiple of this (the coarsest FPN level, stride 32).
 SIZE_DIVISIBLE = 32
@@ -300,6 +305,11 @@ class TogDetector(nn.Module):
             nms_thresh=options.rpn_nms_threshold,
         )
         roi_pool = MultiScaleRoIAlign(["0", "1", "2", "3"], output_size=GRID, sampling_ratio=2)
+        # torchvision infers the level scales from the first batch's image sizes and caches them; with
+        # small images padded to a multiple of 32 that guess is off by a level, and it would depend on
+        # which batch came first: the FPN strides are known, so fix the scales.
+        roi_pool.scales = [1.0 / stride for stride in FPN_STRIDES]
+        roi_pool.map_levels = initLevelMapper(int(math.log2(FPN_STRIDES[0])), int(math.log2(FPN_STRIDES[-1])))
         self.roi_heads = RoIHeads(
             roi_pool, TwoMLPHead(FPN_CHANNELS * GRID * GRID, options.box_head_size),
             FastRCNNPredictor(options.box_head_size, len(CATEGORIES) + 1),

@@ -1,0 +1,117 @@
+"""The TOG / TOG-CRFs model: the API of the contract, losses, gradients and detections."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from helpers import write_synthetic_samples
+
+from osgd.store import ShardStore
+from togcrf.anchors import CANDIDATES_PER_ROI, roi_anchors
+from togcrf.data import SamplesDataset, collate
+from togcrf.model import MODEL_NAMES, TogDetector, build_model, padded_object_grasps
+
+#: A small configuration that keeps CPU tests quick.
+SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
+         "rpn_post_nms_train": 100, "rpn_pre_nms_test": 100, "rpn_post_nms_test": 50, "grasp_rois_per_image": 4,
+         "detections_per_image": 5}
+
+LOSS_KEYS = {"rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
+             "grasp_task"}
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory):
+    root = tmp_path_factory.mktemp("model")
+    write_synthetic_samples(ShardStore(root), 4, seed=5)
+    dataset = SamplesDataset(root, pipeline="synthetic", split=None, image_size=96)
+    return collate([dataset[0], dataset[1]])
+
+
+def test_padded_object_grasps_groups_the_grasps_of_each_object():
+    targets = [
+        {"boxes": torch.zeros(2, 4), "grasps": torch.arange(15.0).reshape(3, 5),
+         "grasp_objects": torch.tensor([1, 0, 1]), "grasp_tasks": torch.tensor([4, 5, 6])},
+        {"boxes": torch.zeros(1, 4), "grasps": torch.full((1, 5), 9.0),
+         "grasp_objects": torch.tensor([0]), "grasp_tasks": torch.tensor([7])},
+    ]
+    grasps, valid, tasks, first = padded_object_grasps(targets)
+    assert first.tolist() == [0, 2]
+    assert valid.tolist() == [[True, False], [True, True], [True, False]]
+    assert grasps[0, 0].tolist() == targets[0]["grasps"][1].tolist()
+    assert grasps[1].tolist() == targets[0]["grasps"][[0, 2]].tolist()
+    assert tasks[1].tolist() == [4, 6] and tasks[2, 0].item() == 7
+    assert grasps[2, 0].tolist() == [9.0] * 5
+
+
+def test_build_model_names_and_variants():
+    assert MODEL_NAMES == ("fcgn-task", "tog", "tog-crfs-omega", "tog-crfs-mu", "tog-crfs")
+    assert build_model("tog", **SMALL).crf is None
+    omega_only = build_model("tog-crfs-omega", **SMALL)
+    assert omega_only.crf.omega.shape == (12, 12) and omega_only.crf.mu is None
+    mu_only = build_model("tog-crfs-mu", **SMALL)
+    assert mu_only.crf.omega is None and mu_only.crf.mu.shape == (12, 12)
+    with pytest.raises(ValueError, match="unknown model"):
+        build_model("tog-xyz")
+    with pytest.raises(ValueError, match="unknown backbone"):
+        build_model("tog", "vgg16")
+    with pytest.raises(TypeError, match="unknown model options"):
+        build_model("tog", no_such_option=1)
+
+
+def test_backbone_takes_depth_and_has_trainable_normalisation():
+    model = build_model("tog", "resnet18", **SMALL)
+    assert model.backbone.body.conv1.in_channels == 1
+    norms = [module for module in model.backbone.modules() if isinstance(module, torch.nn.GroupNorm)]
+    assert norms and all(module.weight.requires_grad for module in norms)
+    batch_norm = build_model("tog", "resnet18", norm="batch", **SMALL)
+    assert any(isinstance(module, torch.nn.BatchNorm2d) for module in batch_norm.backbone.modules())
+
+
+def test_training_returns_the_losses_and_gradients_reach_the_crf(batch):
+    torch.manual_seed(0)
+    images, targets, _ = batch
+    model = build_model("tog-crfs", "resnet18", **SMALL)
+    model.train()
+    losses = model(images, targets)
+    assert set(losses) == LOSS_KEYS
+    assert all(value.dim() == 0 and torch.isfinite(value) for value in losses.values())
+    assert losses["grasp_task"] > 0 and model.last_training_stats["positive_candidates"] > 0
+    sum(losses.values()).backward()
+    for parameter in (model.crf.omega, model.crf.mu, model.backbone.body.conv1.weight,
+                      model.grasp_head.task.weight, model.grasp_head.stability.weight):
+        assert parameter.grad is not None and float(parameter.grad.abs().sum()) > 0
+    with pytest.raises(ValueError, match="targets"):
+        model(images)
+
+
+def test_detections_follow_the_contract(batch):
+    torch.manual_seed(0)
+    images, _, _ = batch
+    model: TogDetector = build_model("tog-crfs", "resnet18", box_score_threshold=0.0, **SMALL)
+    with torch.no_grad():
+        # zero regression: every candidate is its anchor, so the rectangles must be the RoI anchors
+        model.grasp_head.regression.weight.zero_()
+        model.grasp_head.regression.bias.zero_()
+    model.eval()
+    with torch.no_grad():
+        outputs = model(images)
+    assert len(outputs) == len(images)
+    for output in outputs:
+        count = len(output["boxes"])
+        assert count > 0
+        assert output["boxes"].dtype == torch.float32 and output["labels"].dtype == torch.int64
+        assert output["grasps"].shape == (count, CANDIDATES_PER_ROI, 5)
+        assert output["grasp_stability"].shape == (count, CANDIDATES_PER_ROI)
+        assert output["grasp_task_probs"].shape == (count, CANDIDATES_PER_ROI, 12)
+        assert torch.allclose(output["grasp_task_probs"].sum(-1), torch.ones(count, CANDIDATES_PER_ROI), atol=1e-5)
+        assert ((output["grasp_stability"] >= 0) & (output["grasp_stability"] <= 1)).all()
+        assert (output["scores"][:-1] >= output["scores"][1:]).all()
+        assert ((output["labels"] >= 1) & (output["labels"] <= 10)).all()
+        expected = roi_anchors(output["boxes"], model.options.grasp_anchor_size)
+        assert torch.allclose(output["grasps"], expected, atol=1e-4)
+
+
+def test_fcgn_task_is_built_by_name():
+    model = build_model("fcgn-task", "resnet18")
+    assert isinstance(model, torch.nn.Module)
