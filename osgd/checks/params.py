@@ -25,6 +25,12 @@ class ChecksStageParams(StageParams):
         description="constraint solver iterations per step (pybullet's default is 50; 30 holds the same grasps "
         "faster, docs/checks.md)",
     )
+    contact_erp: float | None = Field(
+        0.8, gt=0.0, le=1.0,
+        description="pybullet's contactERP, the share of contact penetration corrected per step; None keeps "
+        "pybullet's default (0.2). 0.8 keeps the pads from sinking through light thin objects under the "
+        "grip force (docs/checks.md)",
+    )
     gravity: float = Field(9.81, ge=0.0, description="magnitude of gravity once the hand has closed, m/s^2")
     # -- the hand ------------------------------------------------------------
     finger_friction: float = Field(

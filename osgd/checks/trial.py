@@ -287,6 +287,8 @@ def run_trial(
         fixedTimeStep=params.timestep, numSolverIterations=params.solver_iterations,
         deterministicOverlappingPairs=1, physicsClientId=client,
     )
+    if params.contact_erp is not None:
+        pybullet.setPhysicsEngineParameter(contactERP=params.contact_erp, physicsClientId=client)
     pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
     grip_force = gripper.grip_force if params.grip_force is None else params.grip_force
     hand = create_hand(
