@@ -39,9 +39,10 @@ def child(arguments: argparse.Namespace) -> None:
     torch.manual_seed(0)
     device = torch.device(arguments.device)
     with tempfile.TemporaryDirectory() as directory:
-        write_synthetic_samples(ShardStore(directory), arguments.batch_size * 2, test_every=10**9,
+        write_synthetic_samples(ShardStore(directory), arguments.batch_size * 2,
                                 height=arguments.image_size, width=arguments.image_size)
-        dataset = SamplesDataset(directory, pipeline="synthetic", image_size=arguments.image_size, augment=True)
+        dataset = SamplesDataset(directory, pipeline="synthetic", split=None, image_size=arguments.image_size,
+                                 augment=True)
         batches = [collate([dataset[index] for index in range(start, start + arguments.batch_size)])
                    for start in (0, arguments.batch_size)]
     model = build_model("tog-crfs", arguments.backbone).to(device)

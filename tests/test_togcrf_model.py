@@ -115,3 +115,14 @@ def test_detections_follow_the_contract(batch):
 def test_fcgn_task_is_built_by_name():
     model = build_model("fcgn-task", "resnet18")
     assert isinstance(model, torch.nn.Module)
+
+
+def test_images_without_objects_train_with_zero_grasp_losses():
+    model = build_model("tog-crfs", "resnet18", **SMALL)
+    model.train()
+    empty = {"boxes": torch.zeros(0, 4), "labels": torch.zeros(0, dtype=torch.int64), "grasps": torch.zeros(0, 5),
+             "grasp_objects": torch.zeros(0, dtype=torch.int64), "grasp_tasks": torch.zeros(0, dtype=torch.int64)}
+    losses = model([torch.zeros(1, 64, 64), torch.zeros(1, 48, 64)], [empty, empty])
+    assert all(torch.isfinite(value) for value in losses.values())
+    assert losses["grasp_task"].item() == 0 and losses["rcnn_class"].item() > 0
+    sum(losses.values()).backward()
