@@ -47,7 +47,9 @@ class Gripper:
     clearance : float
         Opening added to the contact distance when a grasp is pre-shaped.
     grip_force : float
-        Force limit of each finger when closing.
+        Force limit of each finger when closing. The default is the Franka
+        Emika Panda hand's rated continuous force (70 N; 140 N peak). At
+        40 N the check stage dropped most grasps of objects over 0.5 kg.
     """
 
     max_opening: float = 0.08
@@ -57,7 +59,7 @@ class Gripper:
     palm_width: float = 0.06
     palm_thickness: float = 0.03
     clearance: float = 0.01
-    grip_force: float = 40.0
+    grip_force: float = 70.0
 
     def boxes(self, opening: float) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """Collision boxes of the gripper pre-shaped to ``opening``.

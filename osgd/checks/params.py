@@ -47,7 +47,7 @@ class ChecksStageParams(StageParams):
     )
     grip_force: float | None = Field(
         None, gt=0.0,
-        description="force limit of each finger, N; None takes the gripper's grip_force (40 N, osgd.gripper)",
+        description="force limit of each finger, N; None takes the gripper's grip_force (70 N, osgd.gripper)",
     )
     hand_force: float = Field(
         500.0, gt=0.0, description="force limit of the constraint that moves the hand along its path, N"
