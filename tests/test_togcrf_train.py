@@ -12,8 +12,11 @@ from torchvision.ops import box_iou
 from typer.testing import CliRunner
 
 from osgd.store import ShardStore
+from osgd.taxonomy import TASKS
+from togcrf.anchors import match, roi_anchors
 from togcrf.cli import app
 from togcrf.data import SamplesDataset, collate
+from togcrf.model import padded_object_grasps
 from togcrf.train import LOSS_TERMS, TrainConfig, load_checkpoint, train
 
 #: A small model that keeps CPU runs quick (see tests/test_togcrf_model.py).
@@ -86,53 +89,92 @@ def test_cli_trains_and_refuses_to_overwrite(data_dir, tmp_path):
     assert bad.exit_code == 1 and "nope" in bad.output
 
 
-def fit(data_dir, out, epochs: int, samples: int, model: str = "tog-crfs") -> list[dict[str, str]]:
-    torch.manual_seed(0)
-    train(quick_config(data_dir, out, model=model, epochs=epochs, max_samples=samples, image_size=128,
-                       augment=False, lr=0.02, warmup_steps=5))
+#: Settings under which the detector overfits a few synthetic samples from scratch (measured in issue #8:
+#: lr 0.02 at batch 2 is unstable, lr 0.005-0.01 fits). Every grasp RoI of the RCNN sample trains the grasp
+#: branch (16 per image, the model default), so the stability head sees enough positives per step.
+FIT_OPTIONS = {**SMALL, "grasp_rois_per_image": 16}
+
+
+def fit(data_dir, out, epochs: int, samples: int, image_size: int, model: str = "tog-crfs") -> list[dict[str, str]]:
+    train(quick_config(data_dir, out, model=model, epochs=epochs, max_samples=samples, image_size=image_size,
+                       augment=False, lr=0.01, warmup_steps=5, model_options=FIT_OPTIONS))
     return list(csv.DictReader((out / "metrics.csv").open()))
 
 
-def detections_found(data_dir, run_dir, samples: int) -> float:
-    """Fraction of training objects with a detection of the right class at IoU >= 0.5."""
+def fitted_fractions(data_dir, run_dir, samples: int) -> tuple[float, float]:
+    """How well a trained model (eval mode) fits its training samples.
+
+    Returns
+    -------
+    detected : float
+        Fraction of the objects with a detection of the right class at IoU >= 0.5.
+    grasped : float
+        Fraction of the objects whose best such detection has, as its most
+        stable candidate, an anchor that matches a ground-truth grasp of the
+        object (``togcrf.anchors.match`` with the detected box as the RoI)
+        and whose most probable task is one of that anchor's tasks: the
+        train Acc-T top-1 of the eval-mode detections, over all objects.
+    """
     model, config = load_checkpoint(run_dir / "checkpoint.pt")
     dataset = SamplesDataset(data_dir, pipeline="synthetic", image_size=config["image_size"], max_samples=samples)
     images, targets, _ = collate([dataset[index] for index in range(len(dataset))])
     with torch.no_grad():
         outputs = model(images)
-    found = total = 0
+    detected = grasped = total = 0
     for output, target in zip(outputs, targets, strict=True):
+        grasps, valid, tasks, _ = padded_object_grasps([target])
         overlap = box_iou(target["boxes"], output["boxes"])
-        same_class = target["labels"][:, None] == output["labels"][None, :]
-        found += int(((overlap >= 0.5) & same_class).any(dim=1).sum())
+        right = (overlap >= 0.5) & (target["labels"][:, None] == output["labels"][None, :])
         total += len(target["boxes"])
-    return found / total
+        for object_index in range(len(target["boxes"])):
+            candidates = torch.nonzero(right[object_index]).flatten()
+            if len(candidates) == 0:
+                continue
+            detected += 1
+            detection = int(candidates[0])  # outputs are sorted by score
+            box = output["boxes"][detection][None]
+            positive, _, task_targets = match(
+                roi_anchors(box, model.options.grasp_anchor_size), box, grasps[object_index][None],
+                valid[object_index][None], tasks[object_index][None], len(TASKS))
+            best = int(output["grasp_stability"][detection].argmax())
+            task = int(output["grasp_task_probs"][detection, best].argmax())
+            grasped += int(bool(positive[0, best]) and float(task_targets[0, best, task]) > 0)
+    return detected / total, grasped / total
 
 
-def test_short_training_lowers_every_loss_term(data_dir, tmp_path):
-    rows = fit(data_dir, tmp_path / "run", epochs=6, samples=2)
+def assert_losses_fall(rows: list[dict[str, str]], factor: float) -> None:
     first, last = rows[0], rows[-1]
     for term in ("loss", "rpn_objectness", "rcnn_class", "grasp_stability", "grasp_regression", "grasp_task"):
-        assert float(last[term]) < 0.8 * float(first[term]), (term, first[term], last[term])
+        assert float(last[term]) < factor * float(first[term]), (term, first[term], last[term])
+    # rpn_box starts near zero (random proposals match nothing) and peaks as the RPN finds objects
+    peak = max(float(row["rpn_box"]) for row in rows)
+    assert float(last["rpn_box"]) < 0.5 * peak, ("rpn_box", peak, last["rpn_box"])
+    # the 1:3 hard-negative mining makes "P(stable) = 0.25 everywhere" cost 0.56: a head that does not
+    # separate positives from hard negatives stays there
+    assert float(last["grasp_stability"]) < 0.5, last["grasp_stability"]
+
+
+def test_short_training_fits_two_samples(data_dir, tmp_path):
+    """60 SGD steps on 2 samples at 64 px (about 15 s on an idle 2-core CPU): the model fits them."""
+    rows = fit(data_dir, tmp_path / "run", epochs=60, samples=2, image_size=64)
+    assert_losses_fall(rows, 0.5)
+    recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
+    assert sum(recent) / len(recent) >= 0.6, recent
+    detected, grasped = fitted_fractions(data_dir, tmp_path / "run", 2)
+    assert detected >= 0.8, detected
+    assert grasped >= 0.8, grasped
 
 
 @pytest.mark.slow
 def test_longer_training_on_synthetic_samples(data_dir, tmp_path):
-    """120 SGD steps on 4 samples from scratch (about 10 minutes on 2 busy cores).
+    """200 SGD steps on 4 samples at 128 px (about a minute on an idle 2-core CPU, several when loaded).
 
-    Every loss term comes clearly down except ``rcnn_box``, which grows while
-    the proposals become positives, and ``grasp_stability``, which only nears
-    the 1:3 hard-mining prior (0.56) this early. The model does not fit the
-    samples yet at this length: about 60 % of the objects are detected and
-    the on-the-fly train Acc-T top-1 is about 0.4 (see docs/togcrf.md).
+    The figures of this run are in docs/togcrf.md.
     """
-    rows = fit(data_dir, tmp_path / "run", epochs=60, samples=4)
-    first, last = rows[0], rows[-1]
-    for term in ("loss", "rpn_objectness", "rcnn_class", "grasp_regression", "grasp_task"):
-        assert float(last[term]) < 0.5 * float(first[term]), (term, first[term], last[term])
-    assert float(last["grasp_stability"]) < 0.6 * float(first["grasp_stability"])
-    # rpn_box starts near zero and peaks as the RPN finds objects: it must come clearly down from the peak
-    peak = max(float(row["rpn_box"]) for row in rows)
-    assert float(last["rpn_box"]) < 0.5 * peak
-    assert float(last["train_acc_t_top1"]) > float(first["train_acc_t_top1"])
-    assert detections_found(data_dir, tmp_path / "run", 4) >= 0.5
+    rows = fit(data_dir, tmp_path / "run", epochs=100, samples=4, image_size=128)
+    assert_losses_fall(rows, 0.3)
+    recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
+    assert sum(recent) / len(recent) >= 0.8, recent
+    detected, grasped = fitted_fractions(data_dir, tmp_path / "run", 4)
+    assert detected >= 0.9, detected
+    assert grasped >= 0.8, grasped
