@@ -12,11 +12,9 @@ from torchvision.ops import box_iou
 from typer.testing import CliRunner
 
 from osgd.store import ShardStore
-from osgd.taxonomy import TASKS
-from togcrf.anchors import match, roi_anchors
 from togcrf.cli import app
 from togcrf.data import SamplesDataset, collate
-from togcrf.model import padded_object_grasps
+from togcrf.metrics import grasp_match_matrix
 from togcrf.train import LOSS_TERMS, TrainConfig, load_checkpoint, train
 
 #: A small model that keeps CPU runs quick (see tests/test_togcrf_model.py).
@@ -110,10 +108,11 @@ def fitted_fractions(data_dir, run_dir, samples: int) -> tuple[float, float]:
         Fraction of the objects with a detection of the right class at IoU >= 0.5.
     grasped : float
         Fraction of the objects whose best such detection has, as its most
-        stable candidate, an anchor that matches a ground-truth grasp of the
-        object (``togcrf.anchors.match`` with the detected box as the RoI)
-        and whose most probable task is one of that anchor's tasks: the
-        train Acc-T top-1 of the eval-mode detections, over all objects.
+        stable candidate, a rectangle that matches a ground-truth grasp of
+        the object (the mAP-G criterion of Table II: Jaccard > 0.25, angle
+        within 30 degrees) and whose most probable task is the task of one
+        of the grasps it matches: the train Acc-T top-1 of the eval-mode
+        detections, over all objects.
     """
     model, config = load_checkpoint(run_dir / "checkpoint.pt")
     dataset = SamplesDataset(data_dir, pipeline="synthetic", image_size=config["image_size"], max_samples=samples)
@@ -122,7 +121,6 @@ def fitted_fractions(data_dir, run_dir, samples: int) -> tuple[float, float]:
         outputs = model(images)
     detected = grasped = total = 0
     for output, target in zip(outputs, targets, strict=True):
-        grasps, valid, tasks, _ = padded_object_grasps([target])
         overlap = box_iou(target["boxes"], output["boxes"])
         right = (overlap >= 0.5) & (target["labels"][:, None] == output["labels"][None, :])
         total += len(target["boxes"])
@@ -132,13 +130,12 @@ def fitted_fractions(data_dir, run_dir, samples: int) -> tuple[float, float]:
                 continue
             detected += 1
             detection = int(candidates[0])  # outputs are sorted by score
-            box = output["boxes"][detection][None]
-            positive, _, task_targets = match(
-                roi_anchors(box, model.options.grasp_anchor_size), box, grasps[object_index][None],
-                valid[object_index][None], tasks[object_index][None], len(TASKS))
             best = int(output["grasp_stability"][detection].argmax())
+            candidate = output["grasps"][detection, best].numpy()[None]
+            owned = target["grasp_objects"] == object_index
+            matches = grasp_match_matrix(candidate, target["grasps"][owned].numpy())[0]
             task = int(output["grasp_task_probs"][detection, best].argmax())
-            grasped += int(bool(positive[0, best]) and float(task_targets[0, best, task]) > 0)
+            grasped += int(task in set(target["grasp_tasks"][owned][torch.from_numpy(matches)].tolist()))
     return detected / total, grasped / total
 
 
@@ -155,11 +152,11 @@ def assert_losses_fall(rows: list[dict[str, str]], factor: float) -> None:
 
 
 def test_short_training_fits_two_samples(data_dir, tmp_path):
-    """60 SGD steps on 2 samples at 64 px (about 15 s on an idle 2-core CPU): the model fits them."""
-    rows = fit(data_dir, tmp_path / "run", epochs=60, samples=2, image_size=64)
+    """80 SGD steps on 2 samples at 64 px (about 30 s on an idle 2-core CPU): the model fits them."""
+    rows = fit(data_dir, tmp_path / "run", epochs=80, samples=2, image_size=64)
     assert_losses_fall(rows, 0.5)
     recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
-    assert sum(recent) / len(recent) >= 0.6, recent
+    assert sum(recent) / len(recent) >= 0.8, recent
     detected, grasped = fitted_fractions(data_dir, tmp_path / "run", 2)
     assert detected >= 0.8, detected
     assert grasped >= 0.8, grasped
@@ -176,5 +173,5 @@ def test_longer_training_on_synthetic_samples(data_dir, tmp_path):
     recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
     assert sum(recent) / len(recent) >= 0.8, recent
     detected, grasped = fitted_fractions(data_dir, tmp_path / "run", 4)
-    assert detected >= 0.9, detected
+    assert detected >= 0.8, detected
     assert grasped >= 0.8, grasped
