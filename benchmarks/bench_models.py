@@ -38,6 +38,12 @@ def _peak_mib() -> tuple[float, float]:
     return own, children
 
 
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process and its finished children, s (the machine may be shared)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--osgd-dir", type=Path, default=DEFAULT_OSGD)
@@ -61,13 +67,14 @@ def main() -> None:
         counts = {source: sum(s.item.payload["source"] == source for s in shards) for source in sources}
         print(f"models: {len(shards)} ({counts}); planning {planning:.2f} s; workers {arguments.workers}")
         for label, force in (("cold", False), ("rebuild, cached decompositions", True), ("warm", False)):
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), _cpu_seconds()
             report = run_stage(stage, shards, store, executor, force=force)
             elapsed = time.perf_counter() - started
+            cpu = _cpu_seconds() - cpu_started
             rows = sum(record.rows for record in report.records)
             own, children = _peak_mib()
             print(
-                f"{label:<32} {elapsed:8.1f} s  {len(shards) / elapsed:8.2f} models/s  "
+                f"{label:<32} {elapsed:8.1f} s  {len(shards) / elapsed:8.2f} models/s  CPU {cpu:7.1f} s  "
                 f"built {report.built}, reused {report.reused}, failed {len(report.failures)}, rows {rows}; "
                 f"peak RSS main {own:.0f} MiB, largest worker {children:.0f} MiB"
             )

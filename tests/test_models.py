@@ -193,7 +193,7 @@ def test_sidecar_round_trips():
     assert parse_sidecar(sidecar_to_toml(sidecar)) == sidecar
     with pytest.raises(ValueError, match="exactly one of length"):
         parse_sidecar('category = "hammer"\nlength = 0.3\nscale = 0.001\n', "x.toml")
-    with pytest.raises(ValueError, match="x.toml.*unknown category"):
+    with pytest.raises(ValueError, match=r"x\.toml.*unknown category"):
         parse_sidecar('category = "drill"\nlength = 0.3\n', "x.toml")
 
 

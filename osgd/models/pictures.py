@@ -16,15 +16,15 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pyarrow as pa  # noqa: E402
-from matplotlib.collections import PolyCollection  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pyarrow as pa
+from matplotlib.collections import PolyCollection
+from matplotlib.patches import Patch
 
-from osgd.schemas import mesh_from_arrow  # noqa: E402
-from osgd.store import ShardError, ShardStore  # noqa: E402
-from osgd.taxonomy import PARTS  # noqa: E402
+from osgd.schemas import mesh_from_arrow
+from osgd.store import ShardError, ShardStore
+from osgd.taxonomy import PARTS
 
 #: Colour of each part (index into PARTS), then of unknown parts.
 PART_COLOURS = np.array(
