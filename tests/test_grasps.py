@@ -13,7 +13,7 @@ from helpers import block_parts, fixture_models, hammer_parts, model_row, screwd
 from scipy.spatial.transform import Rotation
 
 from osgd.config import ConfigError, build_config
-from osgd.grasps.antipodal import ContactPairs, thin_pairs
+from osgd.grasps.antipodal import ContactPairs, spread_order, thin_pairs
 from osgd.grasps.geometry import closing_region
 from osgd.grasps.labels import DEFAULT_RULES, LabelRule, label_grasp
 from osgd.grasps.pictures import show_grasps
@@ -221,6 +221,16 @@ def test_thinning_drops_near_duplicates_keeping_the_best():
     pairs = ContactPairs(contact_a, contact_b, np.array([0.5, 0.9, 0.4, 0.1]))
     # Pair 0 duplicates the better pair 1; pair 2 shares the centre region but closes across it.
     assert thin_pairs(pairs, 0.008, 0.35).tolist() == [1, 2, 3]
+
+
+def test_spread_order_starts_best_and_goes_far_first():
+    centres = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.2, 0, 0], [0.1, 0, 0]])
+    pairs = ContactPairs(centres, centres + np.array([0, 0.02, 0]), np.array([0.2, 0.9, 0.5, 0.5]))
+    order = spread_order(pairs)
+    assert order[0] == 1
+    assert order[1] == 2  # farthest from pair 1
+    assert order[2] == 3
+    assert sorted(order.tolist()) == [0, 1, 2, 3]
 
 
 # -- annotated pairs ------------------------------------------------------------------------------------------------

@@ -157,3 +157,31 @@ def thin_pairs(pairs: ContactPairs, min_distance: float, min_angle: float) -> np
                 continue
         kept.append(int(index))
     return np.asarray(kept, dtype=np.int64)
+
+
+def spread_order(pairs: ContactPairs) -> np.ndarray:
+    """An order of the pairs that covers the whole object early.
+
+    Farthest-point order of the pair centres, starting from the best pair:
+    each next pair is the one farthest from every pair already taken (ties
+    to the lower index). Taking the first few pairs of this order spreads
+    the grasps over every part instead of piling them where the surfaces are
+    flattest (which quality order alone would do).
+
+    Returns
+    -------
+    (N,) int64
+        A permutation of ``range(len(pairs))``.
+    """
+    count = len(pairs)
+    if count == 0:
+        return np.zeros(0, dtype=np.int64)
+    centres = (pairs.contact_a + pairs.contact_b) / 2
+    order = np.empty(count, dtype=np.int64)
+    order[0] = int(np.lexsort((np.arange(count), -pairs.quality))[0])
+    nearest = np.linalg.norm(centres - centres[order[0]], axis=1)
+    for step in range(1, count):
+        nearest[order[step - 1]] = -1.0
+        order[step] = int(np.argmax(nearest))
+        nearest = np.minimum(nearest, np.linalg.norm(centres - centres[order[step]], axis=1))
+    return order

@@ -21,7 +21,7 @@ import numpy as np
 import pyarrow as pa
 import trimesh
 
-from osgd.grasps.antipodal import sample_pairs, thin_pairs
+from osgd.grasps.antipodal import sample_pairs, spread_order, thin_pairs
 from osgd.grasps.geometry import (
     GripperCollision,
     ObjectSurface,
@@ -256,8 +256,8 @@ class GraspAnnotator:
             friction=params.friction,
             max_distance=self.gripper.max_opening - self.gripper.clearance,
         )
-        order = thin_pairs(pairs, params.thin_distance, params.thin_angle)
-        pairs = pairs.take(order)
+        pairs = pairs.take(thin_pairs(pairs, params.thin_distance, params.thin_angle))
+        pairs = pairs.take(spread_order(pairs))
         kept = 0
         for index in range(len(pairs)):
             if kept >= params.sampler_max_pairs:
