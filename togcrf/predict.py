@@ -201,12 +201,15 @@ def best_grasp_for_task(detections: Detections, task: str, category: str | None 
     }
 
 
-def task_colours() -> np.ndarray:
-    """One RGB colour (floats in [0, 1]) per task, from matplotlib's tab20 (12, 3)."""
-    from matplotlib import colormaps  # noqa: PLC0415
+#: One distinct colour per task, in ``taxonomy.TASKS`` order (hex RGB; our choice, after Kelly's
+#: colours of maximum contrast, so that neighbouring tasks never share a hue).
+TASK_COLOURS = ("#a0a0a0", "#e6194b", "#3cb44b", "#ffe119", "#4363d8", "#f58231", "#911eb4", "#42d4f4",
+                "#f032e6", "#bfef45", "#9a6324", "#ffffff")
 
-    palette = colormaps["tab20"]
-    return np.array([palette(2 * index % 20 + (index >= 10))[:3] for index in range(len(TASKS))])
+
+def task_colours() -> np.ndarray:
+    """One RGB colour (floats in [0, 1]) per task: (12, 3)."""
+    return np.array([[int(code[index:index + 2], 16) / 255 for index in (1, 3, 5)] for code in TASK_COLOURS])
 
 
 def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasps_per_object: int = DRAWN_GRASPS,
@@ -231,7 +234,10 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     valid = depth > 0
     shown = np.where(valid, depth, np.nan)
     low, high = (np.percentile(depth[valid], [1, 99]) if valid.any() else (0.0, 1.0))
-    axes.imshow(shown, cmap="gray_r", vmin=low, vmax=high if high > low else low + 1e-3)
+    span = max(high - low, 1e-3)
+    # A widened range keeps the table mid-grey and objects light, so every task colour stands out.
+    axes.imshow(shown, cmap="gray_r", vmin=low - 0.6 * span, vmax=high + 0.6 * span)
+    axes.set_facecolor("black")
     used_tasks = set()
 
     def draw_rectangle(rectangle: np.ndarray, colour: np.ndarray, thin: float, thick: float) -> None:
@@ -253,7 +259,7 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     if chosen is not None:
         task = TASK_INDEX[chosen["task"]]
         used_tasks.add(task)
-        draw_rectangle(np.asarray(chosen["rectangle"]), np.array([1.0, 1.0, 1.0]), 4.0, 7.0)
+        draw_rectangle(np.asarray(chosen["rectangle"]), np.array([0.0, 0.0, 0.0]), 4.0, 7.0)
         draw_rectangle(np.asarray(chosen["rectangle"]), colours[task], 2.0, 4.0)
         axes.set_title(f"{chosen['task']}: {chosen['category']}, P(task | stable) = {chosen['task_probability']:.2f}, "
                        f"P(stable) = {chosen['stability']:.2f}", fontsize=9)
@@ -263,7 +269,7 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     handles = [Line2D([0], [0], color=colours[task], linewidth=3, label=TASKS[task]) for task in sorted(used_tasks)]
     if handles:
         axes.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=min(6, len(handles)),
-                    fontsize=8, frameon=False)
+                    fontsize=8, frameon=True, facecolor="#444444", edgecolor="none", labelcolor="white")
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path)
