@@ -53,6 +53,36 @@ class CameraIntrinsics:
         """``(fx, fy, cx, cy)`` as a (4,) float64 array, the form stored in shards."""
         return np.array([self.fx, self.fy, self.cx, self.cy], dtype=np.float64)
 
+    def cropped(self, left: float, top: float, side: float, size: int) -> CameraIntrinsics:
+        """The intrinsics of a square window of this image resized to ``size`` px.
+
+        Parameters
+        ----------
+        left, top : float
+            Window corner in pixel-edge coordinates (0 is the image's left /
+            top border; pixel ``i`` spans ``[i, i + 1)``). The window may
+            reach past the image: the result is a virtual camera.
+        side : float
+            Window side, px of this image.
+        size : int
+            Side of the output image, px.
+
+        Returns
+        -------
+        CameraIntrinsics
+            ``size`` x ``size``, same depth range; a point projecting to
+            ``(u, v)`` here projects to ``((u + 0.5 - left) s - 0.5, ...)``
+            with ``s = size / side``.
+        """
+        if side <= 0 or size < 1:
+            raise ValueError(f"crop side {side} px and size {size} px must be positive")
+        scale = size / side
+        return CameraIntrinsics(
+            width=size, height=size, fx=self.fx * scale, fy=self.fy * scale,
+            cx=(self.cx + 0.5 - left) * scale - 0.5, cy=(self.cy + 0.5 - top) * scale - 0.5,
+            near=self.near, far=self.far,
+        )
+
     def project(self, points_camera: np.ndarray) -> np.ndarray:
         """Project camera-frame points to pixels.
 

@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from osgd.config import ConfigError
+from osgd.config import ConfigError, config_to_toml
 from osgd.executor import make_executor
 from osgd.pipeline import (
     COMMAND_STAGES,
@@ -178,6 +178,17 @@ def run_pipeline(
     """Run every stage of a pipeline config in order."""
     names = tuple(stage.name for stage in stages())
     _run(config, set_, names, force)
+
+
+@app.command("config")
+def show_config(config: ConfigOption, set_: SetOption = None) -> None:
+    """Print the full config a pipeline runs with: every parameter of every stage,
+    defaults filled in, each with its meaning. Valid TOML: save it to start a new pipeline."""
+    try:
+        pipeline = load_pipeline(config, set_ or [])
+    except ConfigError as error:
+        _fail(str(error))
+    typer.echo(config_to_toml(pipeline), nl=False)
 
 
 @app.command("status")

@@ -14,6 +14,7 @@ folder.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import tomllib
@@ -214,3 +215,42 @@ def load_config(
     return build_config(
         document, stage_params, origin=str(path), base_dir=path.resolve().parent, overrides=overrides
     )
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, dict):
+        inner = ", ".join(f"{json.dumps(str(key))} = {_toml_value(item)}" for key, item in value.items())
+        return "{ " + inner + " }" if inner else "{}"
+    if value is None:
+        raise ConfigError("TOML has no null; leave the key out instead")
+    raise ConfigError(f"cannot write {value!r} as TOML")
+
+
+def config_to_toml(config: PipelineConfig) -> str:
+    """Every parameter of every stage as a commented TOML document.
+
+    Each key is preceded by its description; keys that are ``None`` (unset
+    optional values) are written as comments. Loading the text back with
+    :func:`build_config` gives an equal config.
+    """
+    lines = ["[pipeline]", f"name = {_toml_value(config.pipeline.name)}", f"seed = {config.pipeline.seed}"]
+    for stage_name, params in config.params.items():
+        lines += ["", f"[{stage_name}]"]
+        values = params.model_dump(mode="json")
+        for field_name, info in type(params).model_fields.items():
+            if info.description:
+                lines.append(f"# {info.description}")
+            value = values[field_name]
+            if value is None:
+                lines.append(f"# {field_name} = (unset)")
+            else:
+                lines.append(f"{field_name} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"

@@ -46,3 +46,32 @@ def test_module_entry_point_runs() -> None:
     result = subprocess.run([sys.executable, "-m", "osgd", "--help"], capture_output=True, text=True, check=False)
     assert result.returncode == 0
     assert "Usage" in result.stdout
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_committed_pipeline_config_is_valid() -> None:
+    from osgd.pipeline import load_pipeline  # noqa: PLC0415
+
+    configs = sorted((ROOT / "pipelines").glob("*.toml"))
+    assert {path.stem for path in configs} >= {"default", "golden", "osgd"}
+    for path in configs:
+        assert load_pipeline(path).pipeline.name == path.stem
+
+
+def test_config_prints_every_parameter_and_reads_back_equal(tmp_path: Path) -> None:
+    from osgd.pipeline import load_pipeline  # noqa: PLC0415
+
+    result = runner.invoke(app, ["config", "--config", str(ROOT / "pipelines" / "default.toml"),
+                                 "--set", "scenes.count=7"])
+    assert result.exit_code == 0, result.output
+    assert "scenes.count" not in result.output and "count = 7" in result.output
+    saved = tmp_path / "default.toml"
+    saved.write_text(result.output)
+    original = load_pipeline(ROOT / "pipelines" / "default.toml", ["scenes.count=7"])
+    again = load_pipeline(saved)
+    assert again.pipeline == original.pipeline
+    assert again.params == original.params
+    # Each field is written with its description as a comment above it.
+    assert "# scenes in all" in result.output

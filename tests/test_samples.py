@@ -65,6 +65,21 @@ def built(tmp_path_factory) -> tuple[ShardStore, list[dict], pa.Table]:
 
 # -- rendering -------------------------------------------------------------------
 
+def test_a_cropped_camera_sees_the_window_of_the_full_image(fixture_scene):
+    """At scale 1 the crop's pixels are the full image's, for every backend."""
+    objects, pose = fixture_scene
+    full = make_renderer("embree").render(objects, KINECT_V2, pose)
+    window = KINECT_V2.cropped(150, 100, 220, 220)
+    exact = full.mask[100:320, 150:370]
+    assert len(np.unique(exact)) > 2
+    for backend in available_backends():
+        cropped = make_renderer(backend).render(objects, window, pose)
+        assert cropped.depth.shape == (220, 220)
+        agree = cropped.mask == exact
+        assert agree.mean() > (0.97 if backend == "tiny" else 0.995), backend
+        assert np.median(np.abs(cropped.depth - full.depth[100:320, 150:370])[agree]) < 0.001, backend
+
+
 def test_every_available_backend_agrees_with_the_exact_ray_caster(fixture_scene):
     objects, pose = fixture_scene
     backends = available_backends()
@@ -230,13 +245,41 @@ def test_stage_rows_match_the_schema_and_decode(built):
     assert [row["sample_id"] for row in rows] == ["scene_000000_view0", "scene_000001_view0", "scene_000002_view0"]
     for row in rows:
         sample = decode_row(row)
-        assert sample.depth.shape == (KINECT_V2.height, KINECT_V2.width)
+        size = SamplesStageParams().crop_size
+        assert sample.depth.shape == (size, size)
         assert row["renderer"] == "embree"
         # Objects are closer to the camera than the floor around them.
         for label in np.unique(sample.mask[sample.mask > 0]):
             assert sample.depth_clean[sample.mask == label].mean() < sample.depth_clean[sample.mask == 0].mean()
         residual = (sample.depth - sample.depth_clean)[sample.depth_clean > 0]
         assert 0.0015 < residual.std() < 0.0025  # 2 mm gaussian, quantised to 1 mm
+
+
+def test_the_crop_frames_every_object_with_the_drawn_margin(built):
+    _, rows, _ = built
+    params = SamplesStageParams()
+    low_margin, high_margin = params.crop_margin
+    for row in rows:
+        boxes = np.array([obj["box"] for obj in row["objects"]])
+        union = np.concatenate([boxes[:, :2].min(axis=0), boxes[:, 2:].max(axis=0)])
+        longest = max(union[2] - union[0], union[3] - union[1])
+        # Visible boxes can be a pixel smaller than the projected vertices' box.
+        assert params.crop_size / high_margin - 2 <= longest <= params.crop_size / low_margin + 1
+        assert np.all(union[:2] >= 0) and np.all(union[2:] <= params.crop_size)
+        # The window is centred on the objects.
+        centre = (union[:2] + union[2:]) / 2
+        assert np.all(np.abs(centre - params.crop_size / 2) < 0.05 * params.crop_size)
+        fx, fy, _, _ = row["intrinsics"]
+        assert fx == fy and fx > KINECT_V2.fx * params.crop_size / KINECT_V2.width
+
+
+def test_crop_size_zero_keeps_the_kinect_frame(tmp_path):
+    store = ShardStore(tmp_path)
+    keys = write_fixture_inputs(store)
+    result = SamplesStage().build(item_for(keys, SamplesStageParams(renderer="embree", crop_size=0)), store)
+    for row in result.table.to_pylist():
+        assert (row["height"], row["width"]) == (KINECT_V2.height, KINECT_V2.width)
+        assert row["intrinsics"] == KINECT_V2.as_array().tolist()
 
 
 def test_grasp_filters_on_the_hand_made_scene(built):
@@ -271,7 +314,7 @@ def test_rectangles_lie_on_their_objects(built):
             # Every fixture grasp lies flat, about 0.7-0.75 m from the camera:
             # h is the opening and w the 2 cm finger seen from there (the
             # camera tilt leaves a little perspective stretch on h).
-            expected = KINECT_V2.fx / grasp["position"][2]
+            expected = row["intrinsics"][0] / grasp["position"][2]
             assert grasp["width"] * expected * 0.95 < h < grasp["width"] * expected * 1.03
             assert w == pytest.approx(0.02 * expected, rel=0.01)
 

@@ -158,3 +158,22 @@ def test_augmentation_draws_depend_on_seed_epoch_and_item(synthetic_dir):
 def test_missing_data_names_the_directory(tmp_path):
     with pytest.raises(FileNotFoundError, match=str(tmp_path.name)):
         SamplesDataset(tmp_path)
+
+
+def test_a_data_dir_is_read_through_its_manifest(tmp_path):
+    """Shards of earlier parameters stay on disk as cache; only the manifest's are read."""
+    import shutil  # noqa: PLC0415
+
+    from osgd.samples.reader import sample_shards  # noqa: PLC0415
+
+    store = ShardStore(tmp_path)
+    write_synthetic_samples(store, 8, seed=1)  # an earlier run: its shard stays on disk
+    current = write_synthetic_samples(store, 16, seed=2)  # rewrites the synthetic manifest
+    assert len(store.keys_on_disk("samples")) == 3
+    assert [path.stem for path in sample_shards(tmp_path)] == current
+    assert len(list(iter_samples(tmp_path))) == 16
+    # A second pipeline with samples: the reader will not guess which one.
+    shutil.copy(store.manifest_path("synthetic"), store.manifest_path("other"))
+    with pytest.raises(ValueError, match="several pipelines have samples"):
+        sample_shards(tmp_path)
+    assert [path.stem for path in sample_shards(tmp_path, "other")] == current

@@ -91,6 +91,19 @@ def test_evaluate_model_sees_the_sample_frame(trained: tuple[Path, Path]) -> Non
         assert 0.0 <= result["metrics"]["mAP"] <= 1.0
 
 
+def test_an_image_without_any_detection_scores_zero(trained: tuple[Path, Path]) -> None:
+    """An untrained model can leave whole images without a box above the threshold."""
+    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+
+    data_dir, checkpoint = trained
+    model, _ = load_checkpoint(checkpoint)
+    model.roi_heads.score_thresh = 1.1  # no score reaches it
+    samples = list(iter_samples(data_dir, pipeline="synthetic", split="test"))
+    result = evaluate_model(model, samples, None, speed_images=0)
+    assert result["metrics"]["images"] == len(samples)
+    assert result["metrics"]["mAP"] == 0.0 and result["metrics"]["mAP-G"] == 0.0
+
+
 def test_figures_draw_omega_and_mu(trained: tuple[Path, Path], tmp_path: Path) -> None:
     _, checkpoint = trained
     result = CliRunner().invoke(app, ["figures", str(checkpoint), "--out", str(tmp_path / "figures")])

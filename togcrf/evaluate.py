@@ -67,15 +67,18 @@ def prediction_to_numpy(output: dict[str, torch.Tensor], scale: float) -> Detect
 
     boxes = array("boxes").reshape(-1, 4) / scale
     count = len(boxes)
-    grasps = array("grasps").reshape(count, -1, 5).copy()
+    # The model's own (N, K, ...) shapes, so that N = 0 (nothing detected)
+    # keeps K and the task count instead of leaving -1 to infer from nothing.
+    grasps = array("grasps").reshape(count, *output["grasps"].shape[1:2] or (0,), 5).copy()
     grasps[..., :4] /= scale
+    task_probs = array("grasp_task_probs")
     return Detections(
         boxes=boxes,
         categories=output["labels"].detach().cpu().numpy().astype(np.int64).reshape(-1) - 1,
         scores=array("scores").reshape(-1),
         grasps=grasps,
-        grasp_stability=array("grasp_stability").reshape(count, -1),
-        grasp_task_probs=array("grasp_task_probs").reshape(count, grasps.shape[1], -1),
+        grasp_stability=array("grasp_stability").reshape(count, grasps.shape[1]),
+        grasp_task_probs=task_probs.reshape(count, grasps.shape[1], task_probs.shape[-1] if task_probs.ndim else 0),
     )
 
 

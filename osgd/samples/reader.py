@@ -136,15 +136,23 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
     ----------
     data_dir : path
     pipeline : str, optional
-        Only the shards the manifest of this pipeline lists, in its order;
-        otherwise every verified shard in ``<data_dir>/samples/``, sorted.
+        Only the shards the manifest of this pipeline lists, in its order.
+        Without it: the pipeline of the data dir's only manifest that has
+        samples, or, where no manifest has, every verified shard in
+        ``<data_dir>/samples/``, sorted. Shards left over from earlier
+        parameters stay on disk (they are the cache), so a data dir is read
+        through its manifest whenever it has one.
 
     Raises
     ------
     FileNotFoundError
         If there is no such manifest, or no samples at all.
+    ValueError
+        If no pipeline is given and several manifests have samples.
     """
     store = ShardStore(data_dir)
+    if pipeline is None:
+        pipeline = _only_samples_pipeline(store)
     if pipeline is not None:
         manifest = store.read_manifest(pipeline)
         if manifest is None:
@@ -163,6 +171,18 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
     if not paths:
         raise FileNotFoundError(f"{Path(data_dir) / 'samples'}: no samples shards; run `osgd render` first")
     return paths
+
+
+def _only_samples_pipeline(store: ShardStore) -> str | None:
+    folder = store.root / "manifests"
+    names = []
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        manifest = store.read_manifest(path.stem)
+        if manifest and manifest.get("stages", {}).get("samples", {}).get("shards"):
+            names.append(path.stem)
+    if len(names) > 1:
+        raise ValueError(f"{folder}: several pipelines have samples ({', '.join(names)}); name one (--pipeline)")
+    return names[0] if names else None
 
 
 def iter_samples(

@@ -31,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from pydantic import Field
+from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import KINECT_V2, CameraIntrinsics
@@ -50,7 +50,7 @@ from osgd.samples.projection import (
     suppress,
 )
 from osgd.samples.renderer import Renderer, RenderObject, make_renderer
-from osgd.samples.viewpoint import draw_camera_pose
+from osgd.samples.viewpoint import CameraPose, draw_camera_pose
 from osgd.schemas import SAMPLES
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
 from osgd.store import ShardRecord, ShardStore
@@ -78,6 +78,14 @@ class SamplesStageParams(StageParams):
     fy: float = Field(KINECT_V2.fy, gt=0, description="Focal length along y, px.")
     cx: float | None = Field(None, description="Principal point x, px; default: the image centre.")
     cy: float | None = Field(None, description="Principal point y, px; default: the image centre.")
+    crop_size: int = Field(
+        320, ge=0, description="Side of the square image around the objects, px; 0 keeps the whole Kinect frame. "
+        "The original generator cropped a square around the union of the object boxes and resized it "
+        "(300 and 500 px); rendering straight into that window's intrinsics gives the same image without "
+        "resampling.")
+    crop_margin: tuple[float, float] = Field(
+        (1.05, 1.3), description="The window's side is the longer side of the objects' union box times a factor "
+        "drawn uniformly in this range (the original generator's U(1.05, 1.3)).")
     camera_height: float = Field(
         0.75, gt=0, description="Camera height above the table, m (0.25 m past the Kinect v2's 0.5 m near limit)."
     )
@@ -116,6 +124,13 @@ class SamplesStageParams(StageParams):
             near=KINECT_V2.near,
             far=KINECT_V2.far,
         )
+
+    @model_validator(mode="after")
+    def _ordered_margin(self) -> SamplesStageParams:
+        low, high = self.crop_margin
+        if not 1.0 <= low <= high:
+            raise ValueError(f"crop_margin {list(self.crop_margin)} must satisfy 1 <= low <= high")
+        return self
 
     def noise(self) -> NoiseModel:
         """The depth noise these parameters describe."""
@@ -194,6 +209,9 @@ def render_sample(
             position=np.asarray(obj["position"], dtype=np.float64),
             quaternion=np.asarray(obj["quaternion"], dtype=np.float64),
         ))
+    if params.crop_size and render_objects:
+        intrinsics = crop_around_objects(intrinsics, pose, render_objects, params.crop_size,
+                                         float(rng.uniform(*params.crop_margin)))
     rendering = renderer.render(render_objects, intrinsics, pose)
     in_range = (rendering.depth >= intrinsics.near) & (rendering.depth <= intrinsics.far)
     depth_clean = np.where(in_range, rendering.depth, 0.0)
@@ -282,6 +300,42 @@ def render_sample(
     }
 
 
+def crop_around_objects(
+    intrinsics: CameraIntrinsics,
+    pose: CameraPose,
+    objects: Sequence[RenderObject],
+    size: int,
+    margin: float,
+) -> CameraIntrinsics:
+    """The intrinsics of a square window around all objects, resized to ``size`` px.
+
+    The window is centred on the union of the objects' projected boxes
+    (every vertex, hidden or not) and its side is the longer side of that
+    union times ``margin``, as the original generator cropped its renders.
+
+    Parameters
+    ----------
+    intrinsics : CameraIntrinsics
+        The full camera.
+    pose : CameraPose
+    objects : sequence of RenderObject
+        Posed objects (world frame).
+    size : int
+        Output side, px.
+    margin : float
+        Window side over the union box's longer side, >= 1.
+    """
+    corners = []
+    for obj in objects:
+        pixels = intrinsics.project(pose.world_to_camera(obj.world_vertices()))
+        corners.append((pixels.min(axis=0), pixels.max(axis=0)))
+    low = np.min([corner[0] for corner in corners], axis=0) + 0.5  # pixel-edge coordinates
+    high = np.max([corner[1] for corner in corners], axis=0) + 0.5
+    centre = (low + high) / 2
+    side = float(max(high - low)) * margin
+    return intrinsics.cropped(centre[0] - side / 2, centre[1] - side / 2, max(side, 1.0), size)
+
+
 def load_stable_grasps(
     store: ShardStore, inputs: Mapping[str, Sequence[str]], model_ids: set[str]
 ) -> dict[str, GraspSet]:
@@ -310,7 +364,7 @@ class SamplesStage(Stage):
 
     name = "samples"
     table = "samples"
-    version = 1
+    version = 2
     inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."
