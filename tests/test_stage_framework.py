@@ -258,3 +258,15 @@ def test_overrides_and_environment_variables(monkeypatch: pytest.MonkeyPatch) ->
     assert fallback.params["toy"].workdir == "/fallback"
     with pytest.raises(ConfigError, match="TOY_UNSET_VARIABLE"):
         build_config({"toy": {"workdir": "${TOY_UNSET_VARIABLE}"}}, {"toy": ToyParams})
+
+
+def test_atomic_writes_get_ordinary_file_permissions(tmp_path: Path) -> None:
+    """Shards and manifests are shared with other users: not the 0600 of a temporary file."""
+    from osgd.store import atomic_write_bytes  # noqa: PLC0415
+
+    previous = os.umask(0o022)
+    try:
+        atomic_write_bytes(tmp_path / "a.bin", b"x")
+    finally:
+        os.umask(previous)
+    assert (tmp_path / "a.bin").stat().st_mode & 0o777 == 0o644
