@@ -20,9 +20,10 @@ executor, and returns a :class:`StageReport`.
 from __future__ import annotations
 
 import abc
+import dataclasses
 import importlib
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -197,18 +198,22 @@ class _BuildTask:
     key: str
     data_dir: str
     force: bool
+    wait: bool = True
 
 
-def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str], bool]:
+def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str], bool] | None:
     """Build and write one shard; runs in a worker. Module-level so it pickles.
 
     Returns the shard's record, its notes, and whether it was built here
-    (False when another process finished it while this one waited).
+    (False when another process finished it while this one waited); None
+    when ``task.wait`` is False and another process holds the shard's lock.
     """
     module_name, class_name = task.stage_ref.split(":")
     stage = getattr(importlib.import_module(module_name), class_name)()
     store = ShardStore(task.data_dir)
-    with store.lock(stage.table, task.key):
+    with store.lock(stage.table, task.key, wait=task.wait) as held:
+        if not held:
+            return None
         if not task.force and store.is_done(stage.table, task.key):
             # Another process built it while this one waited for the lock.
             return store.verify(stage.table, task.key), read_notes(store, stage.table, task.key), False
@@ -304,10 +309,16 @@ def run_stage(
 
     stage_ref = f"{type(stage).__module__}:{type(stage).__qualname__}"
     tasks = [
-        _BuildTask(stage_ref, shard.item, shard.key, str(store.root), force or shard.key in rejected)
+        _BuildTask(stage_ref, shard.item, shard.key, str(store.root), force or shard.key in rejected, wait=False)
         for shard in to_build
     ]
-    for index, outcome in executor.map_unordered(_build_task, tasks):
+    # Shards another process is building (another run on this data dir, on
+    # this machine or another sharing the folder) are passed over at first
+    # and waited for at the end, so that several runs share out the work
+    # instead of queueing behind each other's locks.
+    deferred: list[int] = []
+    outcomes = _outcomes(executor, tasks, deferred)
+    for index, outcome in outcomes:
         shard = to_build[index]
         if isinstance(outcome, TaskFailure):
             log.error(
@@ -330,3 +341,21 @@ def run_stage(
 
     report.records = [done[shard.key] for shard in shards if shard.key in done]
     return report
+
+
+def _outcomes(executor: Executor, tasks: list[_BuildTask], deferred: list[int]) -> Iterator[tuple[int, Any]]:
+    """Run ``tasks`` without waiting for locks, then wait for the ones that were busy.
+
+    Yields (task index, outcome) for every task once; ``deferred`` collects
+    the indices of busy tasks during the first pass.
+    """
+    for index, outcome in executor.map_unordered(_build_task, tasks):
+        if outcome is None:
+            deferred.append(index)
+            continue
+        yield index, outcome
+    if deferred:
+        log.info("waiting for %d shard(s) that another process is building", len(deferred))
+        retries = [dataclasses.replace(tasks[index], wait=True) for index in deferred]
+        for position, outcome in executor.map_unordered(_build_task, retries):
+            yield deferred[position], outcome

@@ -236,14 +236,33 @@ class ShardStore:
         return ShardRecord(table_name, key, item_id, table.num_rows, digest)
 
     @contextlib.contextmanager
-    def lock(self, table: str, key: str) -> Iterator[None]:
-        """Hold an exclusive lock on one shard for as long as the block runs."""
+    def lock(self, table: str, key: str, wait: bool = True) -> Iterator[bool]:
+        """Hold an exclusive lock on one shard for as long as the block runs.
+
+        ``flock`` locks work between processes of one machine and, on NFSv4
+        and most cluster file systems, between machines sharing the folder.
+
+        Parameters
+        ----------
+        wait : bool
+            Wait for another holder to let go; with False the block runs at
+            once and receives False when someone else holds the lock.
+
+        Yields
+        ------
+        bool
+            Whether this process holds the lock.
+        """
         lock_dir = self.root / table / ".locks"
         lock_dir.mkdir(parents=True, exist_ok=True)
         with open(lock_dir / f"{key}.lock", "a+") as handle:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
             try:
-                yield
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                yield False
+                return
+            try:
+                yield True
             finally:
                 fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
 

@@ -270,3 +270,36 @@ def test_atomic_writes_get_ordinary_file_permissions(tmp_path: Path) -> None:
     finally:
         os.umask(previous)
     assert (tmp_path / "a.bin").stat().st_mode & 0o777 == 0o644
+
+
+def test_a_shard_another_process_is_building_is_passed_over_then_waited_for(tmp_path: Path) -> None:
+    """Several runs on one data dir (one machine or many) share out the work."""
+    import threading  # noqa: PLC0415
+
+    stage = ToyStage()
+    shards = stage.planned(ToyParams(items=4), 7, {})
+    store = ShardStore(tmp_path)
+    busy = shards[0]
+    locked, others_done = threading.Event(), threading.Event()
+    order: list[str] = []
+
+    def other_process() -> None:
+        with ShardStore(tmp_path).lock("checks", busy.key) as held:
+            assert held
+            locked.set()
+            others_done.wait(timeout=60)
+
+    holder = threading.Thread(target=other_process)
+    holder.start()
+    locked.wait(timeout=10)
+
+    def on_item(item_id: str, status: str) -> None:
+        order.append(item_id)
+        if len(order) == len(shards) - 1:
+            others_done.set()
+
+    report = run_stage(stage, shards, store, SerialExecutor(), on_item=on_item)
+    holder.join()
+    assert others_done.is_set()
+    assert order[-1] == busy.item.item_id  # built after the lock was let go, not first
+    assert report.built == len(shards) and report.ok
