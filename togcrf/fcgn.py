@@ -40,7 +40,7 @@ from torchvision.models.detection.image_list import ImageList
 from osgd.taxonomy import TASKS
 from togcrf.anchors import ANCHOR_ANGLES, decode, match
 from togcrf.losses import grasp_losses, top1_task_hits
-from togcrf.model import FPN_CHANNELS, GraspHead, ModelOptions, TogDetector, batch_images
+from togcrf.model import FPN_CHANNELS, GraspHead, ModelOptions, TogDetector
 
 log = logging.getLogger(__name__)
 
@@ -138,19 +138,7 @@ class FcgnTask(TogDetector):
                                 device=level.device)
         return regression, stability, self.task_log_probs(task_logits), anchors
 
-    def forward(self, images: list[torch.Tensor], targets: list[dict[str, torch.Tensor]] | None = None):
-        """Losses (train mode, with targets) or detections (eval mode), as the TOG models."""
-        image_list = batch_images(images)
-        features = self.backbone(image_list.tensors)
-        if self.training:
-            if targets is None:
-                raise ValueError("the model is in train mode: pass targets, or call model.eval()")
-            return self._fcgn_losses(image_list, features, targets)
-        proposals, _ = self.rpn(image_list, features)
-        detections, _ = self.roi_heads(features, proposals, image_list.image_sizes)
-        return self._assign_grasps(features, detections)
-
-    def _fcgn_losses(self, image_list: ImageList, features: dict[str, torch.Tensor],
+    def _training_losses(self, image_list: ImageList, features: dict[str, torch.Tensor],
                      targets: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
         options = self.options
         proposals, rpn_losses = self.rpn(image_list, features, targets)
@@ -185,8 +173,9 @@ class FcgnTask(TogDetector):
             "grasp_task": options.weight_task * grasp["grasp_task"],
         }
 
-    def _assign_grasps(self, features: dict[str, torch.Tensor], detections: list[dict[str, torch.Tensor]]
-                       ) -> list[dict[str, torch.Tensor]]:
+    def _detect_grasps(self, features: dict[str, torch.Tensor], detections: list[dict[str, torch.Tensor]],
+                       image_sizes: list[tuple[int, int]]) -> list[dict[str, torch.Tensor]]:
+        """Grasps over the whole image, each assigned to the detected boxes that contain its centre."""
         regression, stability, task_log_probs, anchors = self.image_grasps(features)
         rectangles = decode(regression.float(), anchors[None])
         stable = stability.float().softmax(dim=-1)[..., 1]
