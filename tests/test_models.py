@@ -9,6 +9,8 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from osgd.models import decomposition
@@ -128,6 +130,20 @@ def test_osgd_models_read_with_every_category_and_mapped_pairs(osgd_models_dir):
     assert unmapped_total < mapped_total - 0.1
 
 
+@given(st.floats(1e-4, 10.0), st.floats(1e-3, 1.0), st.floats(1.0, 5.0))
+def test_clamp_mass_keeps_the_centre_and_scales_the_inertia(mass, low, spread):
+    from osgd.models.mass import MassProperties, clamp_mass  # noqa: PLC0415
+
+    high = low * spread
+    inertia = np.diag([1.0, 2.0, 3.0]) * mass
+    body = MassProperties(mass, np.array([0.1, 0.0, -0.2]), inertia, 1e-4, "convex_parts")
+    clamped, note = clamp_mass(body, (low, high))
+    assert low <= clamped.mass <= high
+    assert (note is None) == (low <= mass <= high)
+    np.testing.assert_allclose(clamped.center_of_mass, body.center_of_mass)
+    np.testing.assert_allclose(clamped.inertia, inertia * clamped.mass / mass)
+
+
 def test_odd_annotation_row_count_drops_the_last_point(tmp_path):
     folder = tmp_path / "wrench_900"
     (folder / "annotations").mkdir(parents=True)
@@ -143,21 +159,26 @@ def test_osgd_stage_builds_real_sized_models(tmp_path, osgd_models_dir):
     params = stage.Params(sources=["osgd"], osgd_dir=str(osgd_models_dir), decomposition="hull")
     shards = stage.planned(params, 5, {})
     assert {shard.item.item_id.split("/")[1].split("_")[0] for shard in shards} == set(CATEGORIES)
-    chosen = [shard for shard in shards if shard.item.item_id in ("osgd/wrench_004", "osgd/spatula_001")]
+    chosen = [shard for shard in shards
+              if shard.item.item_id in ("osgd/wrench_004", "osgd/spatula_001", "osgd/pliers_007")]
     store = ShardStore(tmp_path)
     report = run_stage(stage, chosen, store)
-    assert report.ok and report.built == 2
+    assert report.ok and report.built == 3
     rows = store.read_many("models", [record.key for record in report.records]).to_pylist()
     for row in rows:
         low, high = CATEGORY_PROPERTIES[row["category"]].length_range
         assert low <= row["length"] <= high
         vertices, _ = mesh_from_arrow(row["vertices"], row["faces"])
         assert np.isclose(np.ptp(vertices, axis=0).max(), row["length"])
-        assert row["mass"] > 0 and row["annotated_pairs"]
+        assert row["annotated_pairs"]
+        mass_low, mass_high = CATEGORY_PROPERTIES[row["category"]].mass_range
+        assert mass_low <= row["mass"] <= mass_high
         contacts = np.array([pair["contact_a"] for pair in row["annotated_pairs"]])
         # The pairs were scaled with the mesh: they lie around it, not a unit-sized cloud.
         assert np.ptp(contacts, axis=0).max() < 1.5 * row["length"]
     assert any("odd number" in note for note in report.notes["osgd/wrench_004"])
+    # Its bulky handles would weigh kilograms of steel: clamped, with a note.
+    assert any("clamped" in note for note in report.notes["osgd/pliers_007"])
     # Moving the folder changes no key: the location is not part of it.
     moved = tmp_path / "moved"
     moved.symlink_to(osgd_models_dir)

@@ -17,6 +17,13 @@ Where the numbers come from
   ~0.2-0.3 kg, a pen ~10 g). Spoons and forks are steel, but our parts are at
   least 3.2 mm thick (thicker than real cutlery), so their density is lowered
   to 4,000 to keep the masses near the real 40-60 g.
+- ``mass_range``: our choice, the masses of such tools in retail listings
+  (table cutlery 20-100 g, kitchen knives up to 250 g, claw hammers 0.2-1 kg,
+  pliers and wrenches 0.1-0.7 kg, pens 4-30 g). Density times volume is an
+  estimate; an authored mesh bulkier than the real tool would otherwise
+  weigh several times as much (OSGD pliers_007: 2.9 kg), so the mass is
+  clamped into this range (``osgd.models.mass.clamp_mass``). Every
+  procedural model falls inside it.
 - ``friction``: lateral coefficients are our choice from common engineering
   tables (dry steel on steel or rubber-gripped handles 0.5-0.8, smooth
   plastic 0.3-0.5), clamped to what a rubber-padded gripper sees. Rolling
@@ -49,12 +56,15 @@ class CategoryProperties:
         Real longest extent, minimum and maximum, metres.
     density : float
         Effective uniform density, kg/m^3.
+    mass_range : (float, float)
+        Real mass, minimum and maximum, kg.
     lateral_friction : float
         Coulomb friction coefficient, dimensionless.
     """
 
     length_range: tuple[float, float]
     density: float
+    mass_range: tuple[float, float]
     lateral_friction: float
 
     @property
@@ -65,16 +75,16 @@ class CategoryProperties:
 
 #: The table, by category (see the module docstring for the sources).
 CATEGORY_PROPERTIES: Final[dict[str, CategoryProperties]] = {
-    "knife": CategoryProperties((0.16, 0.22), 2500.0, 0.5),
-    "screwdriver": CategoryProperties((0.19, 0.29), 1800.0, 0.7),
-    "spoon": CategoryProperties((0.20, 0.22), 4000.0, 0.5),
-    "fork": CategoryProperties((0.19, 0.20), 4000.0, 0.5),
-    "wrench": CategoryProperties((0.19, 0.30), 7850.0, 0.6),
-    "hammer": CategoryProperties((0.21, 0.33), 2800.0, 0.7),
-    "pen": CategoryProperties((0.12, 0.15), 900.0, 0.5),
-    "toothbrush": CategoryProperties((0.17, 0.19), 1000.0, 0.5),
-    "spatula": CategoryProperties((0.24, 0.32), 1500.0, 0.5),
-    "pliers": CategoryProperties((0.16, 0.30), 7850.0, 0.7),
+    "knife": CategoryProperties((0.16, 0.22), 2500.0, (0.04, 0.25), 0.5),
+    "screwdriver": CategoryProperties((0.19, 0.29), 1800.0, (0.04, 0.30), 0.7),
+    "spoon": CategoryProperties((0.20, 0.22), 4000.0, (0.02, 0.10), 0.5),
+    "fork": CategoryProperties((0.19, 0.20), 4000.0, (0.02, 0.10), 0.5),
+    "wrench": CategoryProperties((0.19, 0.30), 7850.0, (0.10, 0.70), 0.6),
+    "hammer": CategoryProperties((0.21, 0.33), 2800.0, (0.20, 1.00), 0.7),
+    "pen": CategoryProperties((0.12, 0.15), 900.0, (0.004, 0.03), 0.5),
+    "toothbrush": CategoryProperties((0.17, 0.19), 1000.0, (0.006, 0.04), 0.5),
+    "spatula": CategoryProperties((0.24, 0.32), 1500.0, (0.03, 0.25), 0.5),
+    "pliers": CategoryProperties((0.16, 0.30), 7850.0, (0.12, 0.50), 0.7),
 }
 
 assert set(CATEGORY_PROPERTIES) == set(CATEGORIES), "every category needs a row"

@@ -4,6 +4,13 @@ A closed mesh (watertight, consistent winding) gives them exactly through its
 own volume integrals. An open mesh (many authored models are surface soups)
 has no volume; its mass properties then come from the convex parts of its
 collision compound, which is also what the physics engine simulates.
+
+Either estimate assumes a solid of one density; an authored mesh that is
+bulkier than the real tool (thick pliers handles, hulls that fill the gap
+between them) would weigh several times the real thing. :func:`clamp_mass`
+brings the mass into the category's real range, lowering or raising the
+effective density uniformly, so the centre of mass stays and the inertia
+scales with the mass.
 """
 
 from __future__ import annotations
@@ -80,3 +87,25 @@ def compound_mass_properties(parts: list[trimesh.Trimesh], density: float) -> Ma
         # trimesh's moment_inertia is about the part's own centre of mass, for density 1.
         inertia += _shifted_inertia(hull.moment_inertia * density, float(mass), own_centre - centre)
     return MassProperties(total, centre, inertia, float(sum(hull.volume for hull in hulls)), "convex_parts")
+
+
+def clamp_mass(properties: MassProperties, mass_range: tuple[float, float]) -> tuple[MassProperties, str | None]:
+    """The properties with the mass clamped into ``mass_range`` (kg).
+
+    Returns
+    -------
+    MassProperties
+        Unchanged when the mass is inside the range; else the same body with
+        a uniformly scaled density: mass clamped, inertia scaled with it.
+    str or None
+        A note saying what was clamped, or None.
+    """
+    low, high = mass_range
+    target = float(np.clip(properties.mass, low, high))
+    if target == properties.mass:
+        return properties, None
+    factor = target / properties.mass
+    note = (f"mass {properties.mass:.3f} kg from the {properties.source.replace('_', ' ')} is outside the real "
+            f"range {low:g}-{high:g} kg; clamped to {target:.3f} kg (effective density x{factor:.2f})")
+    return MassProperties(target, properties.center_of_mass, properties.inertia * factor, properties.volume,
+                          properties.source), note

@@ -40,7 +40,7 @@ from pydantic import Field
 
 from osgd.models import decomposition, osgd_import, procedural, user
 from osgd.models.categories import category_properties, draw_length
-from osgd.models.mass import compound_mass_properties, mesh_mass_properties
+from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
 from osgd.models.osgd_import import AnnotatedPair
 from osgd.models.validation import ModelRejected, check_length, check_mesh
 from osgd.schemas import MODELS, empty_table
@@ -127,7 +127,7 @@ class ModelsStage(Stage):
 
     name = "models"
     table = "models"
-    version = 1
+    version = 2
     inputs = ()
     Params = ModelsStageParams
     description = "Object models at real size with physical properties and convex parts."
@@ -251,6 +251,12 @@ class ModelsStage(Stage):
             mass = compound_mass_properties(
                 [trimesh.Trimesh(v, f, process=False) for v, f in compound.parts], properties.density
             )
+        density = properties.density
+        estimated_mass = mass.mass
+        mass, clamped = clamp_mass(mass, properties.mass_range)
+        if clamped:
+            notes.append(clamped)
+            density *= mass.mass / estimated_mass
 
         vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
         faces = np.ascontiguousarray(mesh.faces, dtype=np.int32)
@@ -275,7 +281,7 @@ class ModelsStage(Stage):
             "face_parts": checked.face_parts.astype(int).tolist(),
             "convex_parts": [{"vertices": v.tolist(), "faces": f.astype(np.int32).tolist()} for v, f in compound.parts],
             "decomposition": decomposition.description_json(compound.description),
-            "density": properties.density,
+            "density": density,
             "mass": mass.mass,
             "center_of_mass": mass.center_of_mass.tolist(),
             "inertia": mass.inertia.reshape(-1).tolist(),
