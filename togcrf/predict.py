@@ -263,6 +263,11 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
         draw_rectangle(np.asarray(chosen["rectangle"]), colours[task], 2.0, 4.0)
         axes.set_title(f"{chosen['task']}: {chosen['category']}, P(task | stable) = {chosen['task_probability']:.2f}, "
                        f"P(stable) = {chosen['stability']:.2f}", fontsize=9)
+    else:
+        count = len(detections.scores)
+        # An empty picture must say that nothing was detected, not look like a failed drawing.
+        axes.set_title(f"{count} object{'s' if count != 1 else ''} detected" if count else
+                       "no object detected above the score threshold", fontsize=9)
     axes.set_xlim(0, width)
     axes.set_ylim(height, 0)
     axes.set_axis_off()
