@@ -172,6 +172,12 @@ def test_a_data_dir_is_read_through_its_manifest(tmp_path):
     assert len(store.keys_on_disk("samples")) == 3
     assert [path.stem for path in sample_shards(tmp_path)] == current
     assert len(list(iter_samples(tmp_path))) == 16
+    # A manifest whose shards are not here (data/manifests/golden.json in a clone) does not count.
+    foreign = store.read_manifest("synthetic")
+    foreign["stages"]["samples"]["shards"] = [{**entry, "key": "f" * 64} for entry in
+                                              foreign["stages"]["samples"]["shards"]]
+    store.write_manifest("committed", foreign)
+    assert [path.stem for path in sample_shards(tmp_path)] == current
     # A second pipeline with samples: the reader will not guess which one.
     shutil.copy(store.manifest_path("synthetic"), store.manifest_path("other"))
     with pytest.raises(ValueError, match="several pipelines have samples"):

@@ -137,8 +137,8 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
     data_dir : path
     pipeline : str, optional
         Only the shards the manifest of this pipeline lists, in its order.
-        Without it: the pipeline of the data dir's only manifest that has
-        samples, or, where no manifest has, every verified shard in
+        Without it: the pipeline of the data dir's only manifest whose
+        samples shards are on disk, or, where no manifest has, every verified shard in
         ``<data_dir>/samples/``, sorted. Shards left over from earlier
         parameters stay on disk (they are the cache), so a data dir is read
         through its manifest whenever it has one.
@@ -177,8 +177,10 @@ def _only_samples_pipeline(store: ShardStore) -> str | None:
     folder = store.root / "manifests"
     names = []
     for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
-        manifest = store.read_manifest(path.stem)
-        if manifest and manifest.get("stages", {}).get("samples", {}).get("shards"):
+        manifest = store.read_manifest(path.stem) or {}
+        entries = manifest.get("stages", {}).get("samples", {}).get("shards", [])
+        # A committed manifest (data/manifests/golden.json) names shards that were never built here.
+        if any(store.shard_path("samples", entry["key"]).exists() for entry in entries):
             names.append(path.stem)
     if len(names) > 1:
         raise ValueError(f"{folder}: several pipelines have samples ({', '.join(names)}); name one (--pipeline)")
