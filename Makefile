@@ -56,11 +56,14 @@ dataset: install
 golden: install
 	$(BIN)/python -m pytest -q -m '' tests/test_golden.py
 
-# Rebuild the golden pipeline and rewrite its committed manifest (after an intended change).
+# Rebuild the golden pipeline and rewrite its committed record (after an intended change):
+# the manifest, and the shards that tests/test_golden.py compares content with.
 golden-update: install
-	rm -rf .golden-build
-	$(BIN)/osgd --data-dir .golden-build --workers 2 run pipelines/golden.toml
+	rm -rf .golden-build data/golden
+	PYTHONHASHSEED=0 $(BIN)/osgd --data-dir .golden-build --workers 2 run pipelines/golden.toml
 	cp .golden-build/manifests/golden.json data/manifests/golden.json
+	mkdir -p data/golden
+	cd .golden-build && cp -r models grasps checks scenes samples ../data/golden/
 	rm -rf .golden-build
 
 bench: install

@@ -22,6 +22,7 @@ import numpy as np
 import trimesh
 
 from osgd.grasps.geometry import unit
+from osgd.raycast import dot_rows, plane_hit_distances
 
 #: Rays start this far inside the surface so they do not hit their own face
 #: (embree works in float32: about 1e-7 relative, 1e-5 m on a 0.3 m model).
@@ -103,21 +104,25 @@ def sample_pairs(
     normals = unit(np.asarray(mesh.face_normals)[faces])
     directions = _directions_in_cones(normals, half_angle, rng)
     origins = points + _RAY_OFFSET * directions
-    locations, ray_index, hit_faces = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+    _, ray_index, hit_faces = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
     empty = ContactPairs(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     if len(ray_index) == 0:
         return empty
     order = np.argsort(ray_index, kind="stable")
-    ray_index, locations, hit_faces = ray_index[order], locations[order], hit_faces[order]
+    ray_index, hit_faces = ray_index[order], hit_faces[order]
     contact_a = points[ray_index]
     direction = directions[ray_index]
+    # embree's float32 hit points differ in their last bits between processors:
+    # keep the face it hit and intersect that face's plane in float64.
+    along = plane_hit_distances(origins[ray_index], direction, np.asarray(mesh.triangles)[hit_faces])
+    locations = origins[ray_index] + along[:, None] * direction
     exit_normals = unit(np.asarray(mesh.face_normals)[hit_faces])
-    distance = np.einsum("ij,ij->i", locations - contact_a, direction)
-    angle_a = np.arccos(np.clip(np.einsum("ij,ij->i", direction, -normals[ray_index]), -1, 1))
+    distance = dot_rows(locations - contact_a, direction)
+    angle_a = np.arccos(np.clip(dot_rows(direction, -normals[ray_index]), -1, 1))
     # The ray must leave the body through a face facing along it (an entering
     # hit means overlapping parts or an open mesh), inside that face's cone.
-    angle_b = np.arccos(np.clip(np.einsum("ij,ij->i", direction, exit_normals), -1, 1))
-    keep = (angle_b <= half_angle) & (distance >= min_distance) & (distance <= max_distance)
+    angle_b = np.arccos(np.clip(dot_rows(direction, exit_normals), -1, 1))
+    keep = np.isfinite(distance) & (angle_b <= half_angle) & (distance >= min_distance) & (distance <= max_distance)
     if not keep.any():
         return empty
     quality = 1 - np.maximum(angle_a[keep], angle_b[keep]) / half_angle

@@ -39,7 +39,7 @@ class GraspsStage(Stage):
     name = "grasps"
     table = "grasps"
     # Bump whenever the grasps of the same models change.
-    version = 1
+    version = 2
     inputs = ("models",)
     Params = GraspsStageParams
     description = "6-DoF parallel-jaw grasps with task labels."

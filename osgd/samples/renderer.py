@@ -44,6 +44,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import CameraIntrinsics
+from osgd.raycast import plane_hit_distances, rotate_rows
 from osgd.samples.viewpoint import CameraPose
 
 log = logging.getLogger(__name__)
@@ -85,7 +86,7 @@ class RenderObject:
     def world_vertices(self) -> np.ndarray:
         """Vertices in the world frame, (V, 3) float64."""
         rotation = Rotation.from_quat(np.asarray(self.quaternion, dtype=np.float64)).as_matrix()
-        return np.asarray(self.vertices, dtype=np.float64) @ rotation.T + np.asarray(self.position, dtype=np.float64)
+        return rotate_rows(self.vertices, rotation) + np.asarray(self.position, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -170,27 +171,29 @@ class EmbreeRenderer:
 
         scene = rtcore_scene.EmbreeScene()
         # Geometry ids count up from 0 in creation order; geometry_label maps
-        # them to mask values.
-        geometry_label = []
-        if floor:
-            vertices, faces = floor_mesh(pose.position[:2], self.floor_half_size)
+        # them to mask values, geometry_triangles to their (F, 3, 3) triangles.
+        geometry_label: list[int] = []
+        geometry_triangles: list[np.ndarray] = []
+        meshes = [(0, *floor_mesh(pose.position[:2], self.floor_half_size))] if floor else []
+        meshes += [(index + 1, obj.world_vertices(), np.asarray(obj.faces)) for index, obj in enumerate(objects)]
+        for label, vertices, faces in meshes:
             mesh_construction.TriangleMesh(scene, vertices.astype(np.float32), faces.astype(np.int32))
-            geometry_label.append(0)
-        for index, obj in enumerate(objects):
-            mesh_construction.TriangleMesh(
-                scene, obj.world_vertices().astype(np.float32), np.asarray(obj.faces, dtype=np.int32)
-            )
-            geometry_label.append(index + 1)
-        rays = pixel_rays(intrinsics)
-        directions = rays @ pose.rotation.T
-        origins = np.broadcast_to(pose.position, directions.shape)
+            geometry_label.append(label)
+            geometry_triangles.append(np.asarray(vertices, dtype=np.float64)[faces])
         shape = (intrinsics.height, intrinsics.width)
         if not geometry_label:
             return Rendering(np.zeros(shape), np.zeros(shape, dtype=np.int32))
+        directions = rotate_rows(pixel_rays(intrinsics), pose.rotation)
+        origins = np.broadcast_to(np.asarray(pose.position, dtype=np.float64), directions.shape)
         hits = scene.run(origins.astype(np.float32), directions.astype(np.float32), output=1)
-        geometry = hits["geomID"]
+        geometry = np.asarray(hits["geomID"])
         hit = geometry >= 0
-        depth = np.where(hit, hits["tfar"].astype(np.float64), 0.0)
+        # embree says which triangle; where is computed again in float64
+        # (osgd.raycast), so depth does not depend on the processor's SIMD.
+        offsets = np.cumsum([0] + [len(triangles) for triangles in geometry_triangles])
+        triangles = np.concatenate(geometry_triangles)[offsets[geometry[hit]] + np.asarray(hits["primID"])[hit]]
+        depth = np.zeros(geometry.shape)
+        depth[hit] = plane_hit_distances(origins[hit], directions[hit], triangles)
         labels = np.asarray(geometry_label, dtype=np.int32)
         mask = np.where(hit, labels[np.clip(geometry, 0, None)], 0).astype(np.int32)
         return Rendering(depth.reshape(shape), mask.reshape(shape))

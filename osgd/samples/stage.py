@@ -364,7 +364,7 @@ class SamplesStage(Stage):
 
     name = "samples"
     table = "samples"
-    version = 2
+    version = 3
     inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."
