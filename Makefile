@@ -62,8 +62,8 @@ golden-update: install
 	rm -rf .golden-build data/golden
 	PYTHONHASHSEED=0 $(BIN)/osgd --data-dir .golden-build --workers 2 run pipelines/golden.toml
 	cp .golden-build/manifests/golden.json data/manifests/golden.json
-	mkdir -p data/golden
-	cd .golden-build && cp -r models grasps checks scenes samples ../data/golden/
+	for table in models grasps checks scenes samples; do \
+		mkdir -p data/golden/$$table && cp .golden-build/$$table/*.parquet data/golden/$$table/; done
 	rm -rf .golden-build
 
 bench: install

@@ -12,7 +12,7 @@ warm under 10 s.
 
 Usage::
 
-    python benchmarks/bench_models.py [--osgd-dir ../shared/osgd-models] [--workers 2]
+    python benchmarks/bench_models.py [--osgd-dir ../shared/osgd-models] [--workers 2] [--data-dir DIR]
 """
 
 from __future__ import annotations
@@ -49,6 +49,8 @@ def main() -> None:
     parser.add_argument("--osgd-dir", type=Path, default=DEFAULT_OSGD)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--per-category", type=int, default=10)
+    parser.add_argument("--data-dir", type=Path, default=None,
+                        help="empty folder to build in and keep (for `osgd show models`); default: temporary")
     arguments = parser.parse_args()
 
     stage = ModelsStage()
@@ -59,7 +61,10 @@ def main() -> None:
         sources=sources, procedural_per_category=arguments.per_category, osgd_dir=str(arguments.osgd_dir)
     )
     executor = ProcessPoolExecutor(arguments.workers)
-    with tempfile.TemporaryDirectory(prefix="bench_models_") as data_dir:
+    with tempfile.TemporaryDirectory(prefix="bench_models_") as temporary:
+        data_dir = arguments.data_dir or temporary
+        if any(Path(data_dir).glob("models/*.parquet")):
+            parser.error(f"{data_dir} already holds models shards: the cold run needs an empty data dir")
         store = ShardStore(data_dir)
         started = time.perf_counter()
         shards = stage.planned(params, 0, {})

@@ -32,7 +32,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pybullet
+
+from osgd.quiet import import_pybullet
+
+pybullet = import_pybullet()
 
 _OBJ_FOLDER: Path | None = None
 

@@ -251,3 +251,18 @@ def test_summary_and_picture(built: tuple[ShardStore, list[dict]], tmp_path: Pat
     with pytest.raises(KeyError, match="no scene"):
         show_scene(store, "scene_999999", out)
 
+
+
+def test_a_model_whose_content_changes_leaves_the_other_draws_alone():
+    """The pool is ordered by name: a new content hash for one model moves no other model's draws."""
+    rows = [{"model_id": f"{index:016x}", "name": f"procedural/tool_{index:02d}", "category": category}
+            for index, category in enumerate(["hammer", "knife", "fork", "pen"] * 3)]
+    changed = [dict(row) for row in rows]
+    changed[5]["model_id"] = "ffffffffffffffff"  # tool_05 rebuilt with other bytes
+    params = ScenesStageParams()
+    for scene in range(20):
+        before = draw_releases(np.random.default_rng(scene), ModelPool(rows), params)
+        after = draw_releases(np.random.default_rng(scene), ModelPool(changed), params)
+        names_before = [ModelPool(rows).rows[release.model_index]["name"] for release in before]
+        names_after = [ModelPool(changed).rows[release.model_index]["name"] for release in after]
+        assert names_before == names_after

@@ -30,9 +30,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet
 
 from osgd.gripper import Gripper
+from osgd.quiet import import_pybullet
+
+pybullet = import_pybullet()
 
 #: Link indices of the fingers in the hand multibody (the palm is -1, the base).
 FINGER_A = 0

@@ -47,13 +47,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pybullet
 from scipy.spatial.transform import Rotation
 
 from osgd.checks.hand import FINGER_A, FINGER_B, SimulatedHand, create_hand
 from osgd.checks.params import ChecksStageParams
 from osgd.gripper import Gripper
 from osgd.physics import ObjectBody, create_object_body
+from osgd.quiet import import_pybullet
+
+pybullet = import_pybullet()
 
 log = logging.getLogger(__name__)
 

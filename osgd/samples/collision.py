@@ -17,11 +17,13 @@ from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
-import pybullet
 from scipy.spatial.transform import Rotation
 
 from osgd.gripper import Gripper
 from osgd.physics import create_object_body, physics_client
+from osgd.quiet import import_pybullet
+
+pybullet = import_pybullet()
 
 
 class PileCollider:

@@ -29,6 +29,7 @@ centred under the camera.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import logging
 import pkgutil
 import shutil
@@ -44,6 +45,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import CameraIntrinsics
+from osgd.quiet import import_pybullet, native_output_hidden
 from osgd.raycast import plane_hit_distances, rotate_rows
 from osgd.samples.viewpoint import CameraPose
 
@@ -296,7 +298,7 @@ class PybulletRenderer:
     """
 
     def __init__(self, backend: str, floor_half_size: float = 5.0) -> None:
-        import pybullet  # noqa: PLC0415
+        pybullet = import_pybullet()
 
         if backend not in ("egl", "tiny"):
             raise ValueError(f"pybullet backend must be 'egl' or 'tiny', not {backend!r}")
@@ -310,7 +312,9 @@ class PybulletRenderer:
                 pybullet.disconnect(self._client)
                 raise RuntimeError(f"the EGL renderer is not available: {reason}")
             loader = pkgutil.get_loader("eglRenderer")
-            pybullet.loadPlugin(loader.get_filename(), "_eglRendererPlugin", physicsClientId=self._client)
+            with native_output_hidden((1, 2)):
+                pybullet.loadPlugin(loader.get_filename(), "_eglRendererPlugin", physicsClientId=self._client)
+            atexit.register(self._disconnect_quietly)
             self._mode = pybullet.ER_BULLET_HARDWARE_OPENGL
         else:
             self._mode = pybullet.ER_TINY_RENDERER
@@ -320,6 +324,11 @@ class PybulletRenderer:
         # 5 mm off their stated extents.
         vertices, faces = floor_mesh(np.zeros(2), floor_half_size)
         self._floor = RenderObject("__floor__", vertices, faces, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+
+    def _disconnect_quietly(self) -> None:
+        """At exit: unload the EGL plugin without its goodbye on stdout."""
+        with contextlib.suppress(Exception), native_output_hidden((1, 2)):
+            self._pybullet.disconnect(self._client)
 
     def _shape(self, obj: RenderObject) -> int:
         shape = self._shapes.get(obj.key)
@@ -365,14 +374,15 @@ class PybulletRenderer:
                     physicsClientId=client,
                 )
                 bodies[body] = index + 1
-            _, _, _, depth_buffer, segmentation = pybullet.getCameraImage(
-                intrinsics.width,
-                intrinsics.height,
-                viewMatrix=gl_view_matrix(pose),
-                projectionMatrix=gl_projection_matrix(intrinsics),
-                renderer=self._mode,
-                physicsClientId=client,
-            )
+            with native_output_hidden():
+                _, _, _, depth_buffer, segmentation = pybullet.getCameraImage(
+                    intrinsics.width,
+                    intrinsics.height,
+                    viewMatrix=gl_view_matrix(pose),
+                    projectionMatrix=gl_projection_matrix(intrinsics),
+                    renderer=self._mode,
+                    physicsClientId=client,
+                )
         finally:
             for body in bodies:
                 pybullet.removeBody(body, physicsClientId=client)

@@ -31,11 +31,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import pybullet
 from scipy.spatial.transform import Rotation
 
 from osgd.physics import ObjectBody, create_object_body, get_mesh_pose, physics_client
+from osgd.quiet import import_pybullet
 from osgd.scenes.params import ScenesStageParams
+
+pybullet = import_pybullet()
 
 log = logging.getLogger(__name__)
 
@@ -84,8 +86,11 @@ class ModelPool:
     def __init__(self, rows: Sequence[Mapping[str, Any]]) -> None:
         if not rows:
             raise ValueError("the models table has no rows: no scene can be drawn (did every model get rejected?)")
-        # Sorted by content hash, so the pool does not depend on shard order.
-        self.rows: list[Mapping[str, Any]] = sorted(rows, key=lambda row: str(row["model_id"]))
+        # Sorted by name (the content hash breaks ties), so the pool does not
+        # depend on shard order, and a model whose mesh changes (an edit, or
+        # another processor's rounding) changes only the scenes it is in, not
+        # the draws of every scene, as sorting by content hash did.
+        self.rows: list[Mapping[str, Any]] = sorted(rows, key=lambda row: (str(row["name"]), str(row["model_id"])))
         self.categories: list[str] = sorted({str(row["category"]) for row in self.rows})
         self.by_category: dict[str, list[int]] = {
             category: [index for index, row in enumerate(self.rows) if row["category"] == category]

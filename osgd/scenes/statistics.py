@@ -24,11 +24,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import pybullet
 
 from osgd.physics import create_object_body, physics_client
+from osgd.quiet import import_pybullet
 from osgd.scenes.views import cast_view, load_models, posed_meshes
 from osgd.store import ShardRecord, ShardStore
+
+pybullet = import_pybullet()
 
 #: Objects closer than this touch, metres (pybullet rests bodies a fraction of a millimetre apart or in).
 CONTACT_DISTANCE = 0.002
