@@ -1,6 +1,6 @@
 """Keeping what C libraries print off the command line's output.
 
-pybullet prints "pybullet build time: ..." to stdout when it is imported, in
+pybullet prints "pybullet build time: ..." to stderr when it is imported, in
 the main process and in every worker, and its EGL plugin prints its GL set-up
 when it loads, renders and unloads. The CLI's progress bars and summaries are
 what a user reads, so osgd imports pybullet through :func:`import_pybullet`
@@ -10,6 +10,7 @@ and wraps the plugin's calls in :func:`native_output_hidden`.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import importlib
 import os
 import sys
@@ -36,14 +37,22 @@ def native_output_hidden(descriptors: tuple[int, ...] = (1,)) -> Iterator[None]:
                 os.dup2(devnull.fileno(), descriptor)
         yield
     finally:
+        # C's stdio buffers what it prints when the output is a pipe or a file:
+        # flush it while it still goes to /dev/null.
+        _flush_c_stdio()
         for descriptor, copy in zip(descriptors, saved, strict=True):
             os.dup2(copy, descriptor)
             os.close(copy)
 
 
+def _flush_c_stdio() -> None:
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).fflush(None)
+
+
 def import_pybullet() -> ModuleType:
     """The pybullet module, imported without its build-time banner."""
     if "pybullet" not in sys.modules:
-        with native_output_hidden():
+        with native_output_hidden((1, 2)):  # the banner goes to stderr
             importlib.import_module("pybullet")
     return sys.modules["pybullet"]
