@@ -156,12 +156,13 @@ def _print_report(report: StageReport, store: ShardStore) -> bool:
 
 
 def _stage_command(command: str, names: tuple[str, ...]) -> None:
-    descriptions = "; ".join(f"{name}: {stage_by_name(name).description}" for name in names)
+    descriptions = " ".join(f"{name}: {stage_by_name(name).description}" for name in names)
 
     def run_command(config: ConfigOption, set_: SetOption = None, force: ForceOption = False) -> None:
         _run(config, set_, names, force)
 
-    run_command.__doc__ = f"Run the {', '.join(names)} stage(s). {descriptions}"
+    stages = " and ".join(names) + (" stages." if len(names) > 1 else " stage.")
+    run_command.__doc__ = f"Run the {stages} {descriptions}"
     app.command(command)(run_command)
 
 

@@ -61,11 +61,12 @@ class ScenesStageParams(StageParams):
     )
     timestep: float = Field(1.0 / 240.0, gt=0.0, le=0.1, description="simulated seconds per step (pybullet's 1/240)")
     rest_linear_speed: float = Field(
-        0.005, gt=0.0, description="an object is at rest below this linear speed ..."
+        0.005, gt=0.0, description="a scene is settled when every object moved less than this speed, m/s ..."
     )
-    rest_angular_speed: float = Field(0.05, gt=0.0, description="... and below this angular speed, rad/s ...")
+    rest_angular_speed: float = Field(0.05, gt=0.0, description="... and turned less than this speed, rad/s ...")
     rest_steps: int = Field(
-        30, ge=1, description="... and a scene is settled when all its objects stay at rest this many steps"
+        60, ge=1, description="... allow over a window of this many steps (displacement over the window, "
+        "not instantaneous speeds, which contact jitter keeps above the bounds)"
     )
     max_sim_time: float = Field(
         5.0, gt=0.0,

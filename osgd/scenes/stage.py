@@ -24,7 +24,7 @@ class ScenesStage(Stage):
 
     name = "scenes"
     table = "scenes"
-    version = 3
+    version = 4
     inputs = ("models",)
     Params = ScenesStageParams
     description = "Piles of 3-6 objects dropped from 30 cm in pybullet until they come to rest."
