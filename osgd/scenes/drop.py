@@ -255,7 +255,7 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
         reason = detail = ""
         at_rest = False
         window_start: list[tuple[np.ndarray, np.ndarray]] | None = None
-        slowest_mover = ""
+        mover = ""
         while True:
             while len(objects) < len(releases) and release_steps[len(objects)] <= step:
                 index = len(objects)
@@ -298,7 +298,7 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
                 poses = [_com_pose(client, body) for body in objects]
                 if window_start is not None:
                     window = params.rest_steps * dt
-                    at_rest, slowest_mover = _window_at_rest(window_start, poses, objects, params, window)
+                    at_rest, mover = _window_at_rest(window_start, poses, objects, params, window)
                     if at_rest and fixed_steps == 0:
                         break
                 window_start = poses
@@ -306,7 +306,7 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
                 break
         settled = at_rest
         if not reason and not settled and params.reject_unsettled:
-            reason, detail = "not_settled", f"still moving after {step * dt:.2f} s: {slowest_mover}"
+            reason, detail = "not_settled", f"still moving after {step * dt:.2f} s: {mover}"
         if not reason:
             depth, pair = deepest_penetration(client, [body.body_id for body in objects])
             if depth > params.penetration_tolerance:
@@ -336,8 +336,10 @@ def _window_at_rest(start: Sequence[tuple[np.ndarray, np.ndarray]], end: Sequenc
     """
     worst, mover = 1.0, ""
     for body, (position_0, quaternion_0), (position_1, quaternion_1) in zip(objects, start, end, strict=True):
-        moved = float(np.linalg.norm(position_1 - position_0))
-        turned = 2.0 * math.acos(min(1.0, abs(float(np.dot(quaternion_0, quaternion_1)))))
+        # Plain Python floats: BLAS dot products may round by processor.
+        moved = math.dist(position_0.tolist(), position_1.tolist())
+        cosine = abs(math.fsum(a * b for a, b in zip(quaternion_0.tolist(), quaternion_1.tolist(), strict=True)))
+        turned = 2.0 * math.acos(min(1.0, cosine))
         excess = max(moved / (params.rest_linear_speed * window), turned / (params.rest_angular_speed * window))
         if excess >= worst:
             worst = excess
