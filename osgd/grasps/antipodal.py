@@ -104,7 +104,7 @@ def sample_pairs(
     normals = unit(np.asarray(mesh.face_normals)[faces])
     directions = _directions_in_cones(normals, half_angle, rng)
     origins = points + _RAY_OFFSET * directions
-    _, ray_index, hit_faces = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
+    hit_faces, ray_index = mesh.ray.intersects_id(origins, directions, multiple_hits=False)
     empty = ContactPairs(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     if len(ray_index) == 0:
         return empty
