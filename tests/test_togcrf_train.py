@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
+from typing import NamedTuple
 
 import pyarrow.parquet as pq
 import pytest
@@ -14,9 +16,11 @@ from torchvision.ops import box_iou
 from typer.testing import CliRunner
 
 from osgd.store import ShardStore
+from togcrf.anchors import decode
 from togcrf.cli import app
 from togcrf.data import SamplesDataset, collate
 from togcrf.metrics import grasp_match_matrix
+from togcrf.model import batch_images, build_model
 from togcrf.train import LOSS_TERMS, TrainConfig, load_checkpoint, train
 
 #: A small model that keeps CPU runs quick (see tests/test_togcrf_model.py).
@@ -73,6 +77,25 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
         train(quick_config(data_dir, run_dir, epochs=3, resume=True, backbone="resnet34"))
 
 
+@pytest.mark.parametrize(("model_name", "terms"), [("tog", None), ("tog-crfs-omega", (True, False)),
+                                                    ("tog-crfs-mu", (False, True)), ("tog-crfs", (True, True))])
+def test_every_variant_of_table_ii_trains_and_loads_back(data_dir, tmp_path, model_name, terms):
+    train(quick_config(data_dir, tmp_path / model_name, model=model_name, epochs=2, lr=0.01))
+    model, config = load_checkpoint(tmp_path / model_name)
+    assert config["model"] == model_name
+    rows = list(csv.DictReader((tmp_path / model_name / "metrics.csv").open()))
+    assert len(rows) == 2 and all(math.isfinite(float(rows[-1][term])) for term in LOSS_TERMS)
+    if terms is None:
+        assert model.crf is None
+        return
+    initial = build_model(model_name, **SMALL).crf
+    for name, used in zip(("omega", "mu"), terms, strict=True):
+        trained, start = getattr(model.crf, name), getattr(initial, name)
+        assert (trained is not None) == used, name
+        if used:  # the pairwise term moved in 2 SGD steps
+            assert not torch.allclose(trained.detach(), start.detach()), name
+
+
 def test_cli_trains_and_refuses_to_overwrite(data_dir, tmp_path):
     runner = CliRunner()
     arguments = ["train", "--data", str(data_dir), "--pipeline", "synthetic", "--out", str(tmp_path / "run"),
@@ -101,44 +124,62 @@ def fit(data_dir, out, epochs: int, samples: int, image_size: int, model: str = 
     return list(csv.DictReader((out / "metrics.csv").open()))
 
 
-def fitted_fractions(data_dir, run_dir, samples: int, pipeline: str = "synthetic") -> tuple[float, float]:
-    """How well a trained model (eval mode) fits its training samples.
+class Fit(NamedTuple):
+    """How well a trained model (eval mode) fits its training samples (:func:`fitted_fractions`)."""
 
-    Returns
-    -------
-    detected : float
-        Fraction of the objects with a detection of the right class at IoU >= 0.5.
-    grasped : float
-        Fraction of the objects whose best such detection has, as its most
-        stable candidate, a rectangle that matches a ground-truth grasp of
-        the object (the mAP-G criterion of Table II: Jaccard > 0.25, angle
-        within 30 degrees) and whose most probable task is the task of one
-        of the grasps it matches: the train Acc-T top-1 of the eval-mode
-        detections, over all objects.
+    #: Fraction of the objects with a detection of the right class at IoU >= 0.5.
+    detected: float
+    #: Fraction of the objects with at least one ground-truth grasp (the objects Acc-T counts) whose best such
+    #: detection's most stable candidate matches a ground-truth grasp of the object (the mAP-G criterion of
+    #: Table II: Jaccard > 0.25, angle within 30 degrees) with the task of a matched grasp as its most
+    #: probable task: the train Acc-T top-1 of the eval-mode detections, an undetected object a miss.
+    grasped: float
+    #: The same with the grasp branch run on the ground-truth boxes: how well the grasp head alone fits.
+    grasped_on_true_boxes: float
+
+
+def top1_is_right(rectangles, stability, task_probs, grasps, tasks) -> bool:
+    """Whether the most stable of a RoI's candidates matches one of ``grasps`` with a matched grasp's task.
+
+    Shapes: rectangles (196, 5), stability (196,), task_probs (196, 12), grasps (M, 5), tasks (M,).
     """
+    best = int(stability.argmax())
+    matches = grasp_match_matrix(rectangles[best].numpy()[None], grasps.numpy())[0]
+    return int(task_probs[best].argmax()) in set(tasks[torch.from_numpy(matches)].tolist())
+
+
+def fitted_fractions(data_dir, run_dir, samples: int, pipeline: str = "synthetic") -> Fit:
+    """How well the model of ``run_dir`` fits the first ``samples`` training samples (see :class:`Fit`)."""
     model, config = load_checkpoint(run_dir / "checkpoint.pt")
     dataset = SamplesDataset(data_dir, pipeline=pipeline, image_size=config["image_size"], max_samples=samples)
     images, targets, _ = collate([dataset[index] for index in range(len(dataset))])
     with torch.no_grad():
         outputs = model(images)
-    detected = grasped = total = 0
+        image_list = batch_images(images)
+        regression, stability, task_log_probs, anchors = model.grasp_outputs(
+            model.backbone(image_list.tensors), [target["boxes"] for target in targets], image_list.image_sizes)
+    true_box_rectangles = decode(regression, anchors)
+    true_box_stability = stability.softmax(dim=-1)[..., 1]
+    detected = grasped = grasped_on_true_boxes = total = with_grasps = 0
     for output, target in zip(outputs, targets, strict=True):
         overlap = box_iou(target["boxes"], output["boxes"])
         right = (overlap >= 0.5) & (target["labels"][:, None] == output["labels"][None, :])
-        total += len(target["boxes"])
         for object_index in range(len(target["boxes"])):
-            candidates = torch.nonzero(right[object_index]).flatten()
-            if len(candidates) == 0:
-                continue
-            detected += 1
-            detection = int(candidates[0])  # outputs are sorted by score
-            best = int(output["grasp_stability"][detection].argmax())
-            candidate = output["grasps"][detection, best].numpy()[None]
             owned = target["grasp_objects"] == object_index
-            matches = grasp_match_matrix(candidate, target["grasps"][owned].numpy())[0]
-            task = int(output["grasp_task_probs"][detection, best].argmax())
-            grasped += int(task in set(target["grasp_tasks"][owned][torch.from_numpy(matches)].tolist()))
-    return detected / total, grasped / total
+            grasps, tasks = target["grasps"][owned], target["grasp_tasks"][owned]
+            candidates = torch.nonzero(right[object_index]).flatten()
+            detected += int(len(candidates) > 0)
+            if len(grasps):
+                with_grasps += 1
+                roi = total + object_index
+                grasped_on_true_boxes += top1_is_right(true_box_rectangles[roi], true_box_stability[roi],
+                                                       task_log_probs[roi].exp(), grasps, tasks)
+                if len(candidates):
+                    detection = int(candidates[0])  # outputs are sorted by score
+                    grasped += top1_is_right(output["grasps"][detection], output["grasp_stability"][detection],
+                                             output["grasp_task_probs"][detection], grasps, tasks)
+        total += len(target["boxes"])
+    return Fit(detected / total, grasped / with_grasps, grasped_on_true_boxes / with_grasps)
 
 
 def assert_losses_fall(rows: list[dict[str, str]], factor: float) -> None:
@@ -159,9 +200,8 @@ def test_short_training_fits_two_samples(data_dir, tmp_path):
     assert_losses_fall(rows, 0.5)
     recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
     assert sum(recent) / len(recent) >= 0.8, recent
-    detected, grasped = fitted_fractions(data_dir, tmp_path / "run", 2)
-    assert detected >= 0.8, detected
-    assert grasped >= 0.8, grasped
+    fitted = fitted_fractions(data_dir, tmp_path / "run", 2)
+    assert fitted.detected >= 0.8 and fitted.grasped >= 0.8, fitted
 
 
 @pytest.mark.slow
@@ -174,17 +214,17 @@ def test_longer_training_on_synthetic_samples(data_dir, tmp_path):
     assert_losses_fall(rows, 0.3)
     recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
     assert sum(recent) / len(recent) >= 0.8, recent
-    detected, grasped = fitted_fractions(data_dir, tmp_path / "run", 4)
-    assert detected >= 0.8, detected
-    assert grasped >= 0.8, grasped
+    fitted = fitted_fractions(data_dir, tmp_path / "run", 4)
+    assert fitted.detected >= 0.8 and fitted.grasped >= 0.8, fitted
 
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data"
 
 
-def train_on_golden_samples(tmp_path, epochs: int) -> tuple[list[dict[str, str]], float, float]:
+def train_on_golden_samples(tmp_path, epochs: int) -> tuple[list[dict[str, str]], Fit]:
     """Train TOG-CRFs on the render stage's own samples: the committed golden run (4 piles of procedural
-    tools, 320 px crops), at 192 px, 2 per batch, lr 0.01; return the metrics rows and the fit."""
+    tools, 320 px crops, 16 objects of which 11 have grasps), at 192 px, 2 per batch, lr 0.01; return the
+    metrics rows and the fit."""
     data_dir = tmp_path / "golden"
     store = ShardStore(data_dir)
     golden = json.loads((GOLDEN / "manifests" / "golden.json").read_text())["stages"]["samples"]["shards"]
@@ -196,24 +236,34 @@ def train_on_golden_samples(tmp_path, epochs: int) -> tuple[list[dict[str, str]]
     train(quick_config(data_dir, out, pipeline="golden", model="tog-crfs", epochs=epochs, max_samples=4,
                        image_size=192, augment=False, lr=0.01, warmup_steps=5, model_options=FIT_OPTIONS))
     rows = list(csv.DictReader((out / "metrics.csv").open()))
-    detected, grasped = fitted_fractions(data_dir, out, 4, pipeline="golden")
-    return rows, detected, grasped
+    return rows, fitted_fractions(data_dir, out, 4, pipeline="golden")
+
+
+def recent_train_acc_t(rows: list[dict[str, str]]) -> float:
+    """Mean on-the-fly train Acc-T top-1 of the last 5 epochs."""
+    return sum(float(row["train_acc_t_top1"]) for row in rows[-5:]) / 5
 
 
 def test_short_training_on_the_golden_samples(tmp_path):
-    """100 SGD steps on the 4 golden samples (about 70 s on an idle 2-core CPU): every loss term falls
-    and most objects are detected (measured: 15 of 16 objects)."""
-    rows, detected, _ = train_on_golden_samples(tmp_path, epochs=50)
-    assert_losses_fall(rows, 0.5)
-    assert detected >= 0.7, detected
+    """200 SGD steps on the 4 golden samples (about 150 s on an idle 2-core CPU).
+
+    Measured with seeds 0, 1, 2: every object detected; the grasp head on the ground-truth boxes gives
+    all 11 objects with grasps a right top-1 grasp and task; on its own detections 10, 8 and 9 of 11
+    (the misses: a 6 px offset on a 6 px opening, two overlapping pliers, a point between two screw
+    grasps); train Acc-T top-1 on the fly 0.81-0.91 over the last 5 epochs; losses 0.03-0.3 of their
+    first values.
+    """
+    rows, fitted = train_on_golden_samples(tmp_path, epochs=100)
+    assert_losses_fall(rows, 0.3)
+    assert fitted.detected >= 0.9 and fitted.grasped_on_true_boxes >= 0.9 and fitted.grasped >= 0.6, fitted
+    assert recent_train_acc_t(rows) >= 0.7, [row["train_acc_t_top1"] for row in rows[-5:]]
 
 
 @pytest.mark.slow
 def test_longer_training_fits_the_golden_samples(tmp_path):
-    """200 SGD steps (about 140 s): measured 14 of 16 objects detected, 8 of 16 with a most stable grasp
-    that matches a ground-truth grasp of the right task (train Acc-T top-1 0.42 on the fly; 300 steps
-    give the same); losses 0.05-0.3 of their first values."""
-    rows, detected, grasped = train_on_golden_samples(tmp_path, epochs=100)
-    assert_losses_fall(rows, 0.3)
-    assert detected >= 0.85, detected
-    assert grasped >= 0.3, grasped
+    """400 SGD steps (about 5 min): measured every object detected and all 11 objects with grasps given
+    a right top-1 grasp and task on the model's own detections; train Acc-T top-1 0.92-1.0 on the fly."""
+    rows, fitted = train_on_golden_samples(tmp_path, epochs=200)
+    assert_losses_fall(rows, 0.2)
+    assert fitted.detected >= 0.9 and fitted.grasped >= 0.9 and fitted.grasped_on_true_boxes >= 0.9, fitted
+    assert recent_train_acc_t(rows) >= 0.9, [row["train_acc_t_top1"] for row in rows[-5:]]

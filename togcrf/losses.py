@@ -100,14 +100,19 @@ def top1_task_hits(
 ) -> tuple[int, int]:
     """Train Acc-T top-1 counts, measured on the fly on the training RoIs.
 
-    A RoI counts as a hit when its candidate of highest stability is a
-    positive candidate and its most probable task is one of the tasks of the
+    Only RoIs with at least one positive candidate count, as Acc-T counts
+    only objects with a ground-truth grasp: a RoI of an object without
+    grasps, or one whose grasps lie outside it, cannot be a hit. Such a RoI
+    counts as a hit when its candidate of highest stability is a positive
+    candidate and its most probable task is one of the tasks of the
     ground-truth grasps it matches (a top-1 candidate that matches no grasp
     is a miss).
 
     Returns
     -------
-    hits, rois : int
+    hits : int
+    rois : int
+        RoIs with at least one positive candidate.
     """
     if positive.numel() == 0:
         return 0, 0
@@ -116,4 +121,4 @@ def top1_task_hits(
     predicted_task = task_log_probs.detach()[rows, best].argmax(dim=-1)
     right = task_targets[rows, best, predicted_task] > 0
     hits = (positive[rows, best] & right).sum()
-    return int(hits), int(best.shape[0])
+    return int(hits), int(positive.any(dim=1).sum())
