@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -183,3 +185,14 @@ def test_a_data_dir_is_read_through_its_manifest(tmp_path):
     with pytest.raises(ValueError, match="several pipelines have samples"):
         sample_shards(tmp_path)
     assert [path.stem for path in sample_shards(tmp_path, "other")] == current
+
+
+def test_the_training_package_leaves_the_generator_dependencies_out():
+    """togcrf reads shards only: importing all of it loads no physics, mesh or ray-casting library."""
+    heavy = ("pybullet", "trimesh", "coacd", "embreex", "manifold3d", "rtree", "osgd.models", "osgd.grasps",
+             "osgd.checks", "osgd.scenes", "osgd.physics", "osgd.raycast")
+    script = ("import sys, togcrf.cli, togcrf.train, togcrf.evaluate, togcrf.predict, togcrf.figures, "
+              "togcrf.reproduce, togcrf.fcgn\n"
+              f"print(sorted(name for name in sys.modules if name.split('.')[0] in {heavy!r} or name in {heavy!r}))")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]", result.stdout

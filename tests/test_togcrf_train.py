@@ -36,6 +36,22 @@ def data_dir(tmp_path_factory):
     return root
 
 
+GOLDEN = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="module")
+def golden_dir(tmp_path_factory):
+    """A data dir holding the committed golden samples shards (the render stage's output) as pipeline "golden"."""
+    root = tmp_path_factory.mktemp("golden")
+    store = ShardStore(root)
+    golden = json.loads((GOLDEN / "manifests" / "golden.json").read_text())["stages"]["samples"]["shards"]
+    records = [store.write("samples", shard["key"], shard["item"],
+                           pq.read_table(GOLDEN / "golden" / "samples" / f"{shard['key']}.parquet"))
+               for shard in golden]
+    store.write_manifest("golden", {"stages": {"samples": {"shards": [record.as_dict() for record in records]}}})
+    return root
+
+
 def quick_config(data_dir, out, **changes) -> TrainConfig:
     values = {"data": str(data_dir), "out": str(out), "pipeline": "synthetic", "model": "tog-crfs",
               "backbone": "resnet18", "epochs": 1, "batch_size": 2, "max_samples": 2, "image_size": 64,
@@ -79,8 +95,9 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
 
 @pytest.mark.parametrize(("model_name", "terms"), [("tog", None), ("tog-crfs-omega", (True, False)),
                                                     ("tog-crfs-mu", (False, True)), ("tog-crfs", (True, True))])
-def test_every_variant_of_table_ii_trains_and_loads_back(data_dir, tmp_path, model_name, terms):
-    train(quick_config(data_dir, tmp_path / model_name, model=model_name, epochs=2, lr=0.01))
+def test_every_variant_of_table_ii_trains_on_rendered_samples(golden_dir, tmp_path, model_name, terms):
+    train(quick_config(golden_dir, tmp_path / model_name, pipeline="golden", model=model_name, epochs=2,
+                       image_size=96, lr=0.01))
     model, config = load_checkpoint(tmp_path / model_name)
     assert config["model"] == model_name
     rows = list(csv.DictReader((tmp_path / model_name / "metrics.csv").open()))
@@ -94,6 +111,20 @@ def test_every_variant_of_table_ii_trains_and_loads_back(data_dir, tmp_path, mod
         assert (trained is not None) == used, name
         if used:  # the pairwise term moved in 2 SGD steps
             assert not torch.allclose(trained.detach(), start.detach()), name
+
+
+def test_tensorboard_gets_the_scalars_of_metrics_csv(data_dir, tmp_path):
+    event_accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator",
+                                            reason="tensorboard is an optional dependency (pip install .[dev])")
+    train(quick_config(data_dir, tmp_path / "run", epochs=2))
+    rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
+    events = event_accumulator.EventAccumulator(str(tmp_path / "run" / "tensorboard"))
+    events.Reload()
+    for key in ("loss", *LOSS_TERMS):
+        logged = [(event.step, event.value) for event in events.Scalars(f"epoch/{key}")]
+        assert [step for step, _ in logged] == [0, 1], key
+        assert [value for _, value in logged] == pytest.approx([float(row[key]) for row in rows], rel=1e-5), key
+    assert [event.step for event in events.Scalars("step/grasp_task")] == [1, 2]
 
 
 def test_cli_trains_and_refuses_to_overwrite(data_dir, tmp_path):
@@ -218,25 +249,14 @@ def test_longer_training_on_synthetic_samples(data_dir, tmp_path):
     assert fitted.detected >= 0.8 and fitted.grasped >= 0.8, fitted
 
 
-GOLDEN = Path(__file__).resolve().parents[1] / "data"
-
-
-def train_on_golden_samples(tmp_path, epochs: int) -> tuple[list[dict[str, str]], Fit]:
+def train_on_golden_samples(golden_dir, out, epochs: int) -> tuple[list[dict[str, str]], Fit]:
     """Train TOG-CRFs on the render stage's own samples: the committed golden run (4 piles of procedural
     tools, 320 px crops, 16 objects of which 11 have grasps), at 192 px, 2 per batch, lr 0.01; return the
     metrics rows and the fit."""
-    data_dir = tmp_path / "golden"
-    store = ShardStore(data_dir)
-    golden = json.loads((GOLDEN / "manifests" / "golden.json").read_text())["stages"]["samples"]["shards"]
-    records = [store.write("samples", shard["key"], shard["item"],
-                           pq.read_table(GOLDEN / "golden" / "samples" / f"{shard['key']}.parquet"))
-               for shard in golden]
-    store.write_manifest("golden", {"stages": {"samples": {"shards": [record.as_dict() for record in records]}}})
-    out = tmp_path / "run"
-    train(quick_config(data_dir, out, pipeline="golden", model="tog-crfs", epochs=epochs, max_samples=4,
+    train(quick_config(golden_dir, out, pipeline="golden", model="tog-crfs", epochs=epochs, max_samples=4,
                        image_size=192, augment=False, lr=0.01, warmup_steps=5, model_options=FIT_OPTIONS))
     rows = list(csv.DictReader((out / "metrics.csv").open()))
-    return rows, fitted_fractions(data_dir, out, 4, pipeline="golden")
+    return rows, fitted_fractions(golden_dir, out, 4, pipeline="golden")
 
 
 def recent_train_acc_t(rows: list[dict[str, str]]) -> float:
@@ -244,7 +264,7 @@ def recent_train_acc_t(rows: list[dict[str, str]]) -> float:
     return sum(float(row["train_acc_t_top1"]) for row in rows[-5:]) / 5
 
 
-def test_short_training_on_the_golden_samples(tmp_path):
+def test_short_training_on_the_golden_samples(golden_dir, tmp_path):
     """200 SGD steps on the 4 golden samples (about 150 s on an idle 2-core CPU).
 
     Measured with seeds 0, 1, 2: every object detected; the grasp head on the ground-truth boxes gives
@@ -253,17 +273,17 @@ def test_short_training_on_the_golden_samples(tmp_path):
     grasps); train Acc-T top-1 on the fly 0.81-0.91 over the last 5 epochs; losses 0.03-0.3 of their
     first values.
     """
-    rows, fitted = train_on_golden_samples(tmp_path, epochs=100)
+    rows, fitted = train_on_golden_samples(golden_dir, tmp_path / "run", epochs=100)
     assert_losses_fall(rows, 0.3)
     assert fitted.detected >= 0.9 and fitted.grasped_on_true_boxes >= 0.9 and fitted.grasped >= 0.6, fitted
     assert recent_train_acc_t(rows) >= 0.7, [row["train_acc_t_top1"] for row in rows[-5:]]
 
 
 @pytest.mark.slow
-def test_longer_training_fits_the_golden_samples(tmp_path):
+def test_longer_training_fits_the_golden_samples(golden_dir, tmp_path):
     """400 SGD steps (about 5 min): measured every object detected and all 11 objects with grasps given
     a right top-1 grasp and task on the model's own detections; train Acc-T top-1 0.92-1.0 on the fly."""
-    rows, fitted = train_on_golden_samples(tmp_path, epochs=200)
+    rows, fitted = train_on_golden_samples(golden_dir, tmp_path / "run", epochs=200)
     assert_losses_fall(rows, 0.2)
     assert fitted.detected >= 0.9 and fitted.grasped >= 0.9 and fitted.grasped_on_true_boxes >= 0.9, fitted
     assert recent_train_acc_t(rows) >= 0.9, [row["train_acc_t_top1"] for row in rows[-5:]]
