@@ -213,6 +213,11 @@ def fitted_fractions(data_dir, run_dir, samples: int, pipeline: str = "synthetic
     return Fit(detected / total, grasped / with_grasps, grasped_on_true_boxes / with_grasps)
 
 
+def recent_train_acc_t(rows: list[dict[str, str]]) -> float:
+    """Mean on-the-fly train Acc-T top-1 of the last 5 epochs."""
+    return sum(float(row["train_acc_t_top1"]) for row in rows[-5:]) / 5
+
+
 def assert_losses_fall(rows: list[dict[str, str]], factor: float) -> None:
     first, last = rows[0], rows[-1]
     for term in ("loss", "rpn_objectness", "rcnn_class", "grasp_stability", "grasp_regression", "grasp_task"):
@@ -229,8 +234,7 @@ def test_short_training_fits_two_samples(data_dir, tmp_path):
     """80 SGD steps on 2 samples at 64 px (about 30 s on an idle 2-core CPU): the model fits them."""
     rows = fit(data_dir, tmp_path / "run", epochs=80, samples=2, image_size=64)
     assert_losses_fall(rows, 0.5)
-    recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
-    assert sum(recent) / len(recent) >= 0.8, recent
+    assert recent_train_acc_t(rows) >= 0.8, [row["train_acc_t_top1"] for row in rows[-5:]]
     fitted = fitted_fractions(data_dir, tmp_path / "run", 2)
     assert fitted.detected >= 0.8 and fitted.grasped >= 0.8, fitted
 
@@ -243,8 +247,7 @@ def test_longer_training_on_synthetic_samples(data_dir, tmp_path):
     """
     rows = fit(data_dir, tmp_path / "run", epochs=100, samples=4, image_size=128)
     assert_losses_fall(rows, 0.3)
-    recent = [float(row["train_acc_t_top1"]) for row in rows[-5:]]
-    assert sum(recent) / len(recent) >= 0.8, recent
+    assert recent_train_acc_t(rows) >= 0.8, [row["train_acc_t_top1"] for row in rows[-5:]]
     fitted = fitted_fractions(data_dir, tmp_path / "run", 4)
     assert fitted.detected >= 0.8 and fitted.grasped >= 0.8, fitted
 
@@ -257,11 +260,6 @@ def train_on_golden_samples(golden_dir, out, epochs: int) -> tuple[list[dict[str
                        image_size=192, augment=False, lr=0.01, warmup_steps=5, model_options=FIT_OPTIONS))
     rows = list(csv.DictReader((out / "metrics.csv").open()))
     return rows, fitted_fractions(golden_dir, out, 4, pipeline="golden")
-
-
-def recent_train_acc_t(rows: list[dict[str, str]]) -> float:
-    """Mean on-the-fly train Acc-T top-1 of the last 5 epochs."""
-    return sum(float(row["train_acc_t_top1"]) for row in rows[-5:]) / 5
 
 
 def test_short_training_on_the_golden_samples(golden_dir, tmp_path):
