@@ -19,7 +19,7 @@ from osgd.store import ShardStore
 from togcrf.anchors import decode
 from togcrf.cli import app
 from togcrf.data import SamplesDataset, collate
-from togcrf.metrics import grasp_match_matrix
+from togcrf.metrics import right_tasks
 from togcrf.model import batch_images, build_model
 from togcrf.train import LOSS_TERMS, TrainConfig, load_checkpoint, train
 
@@ -162,21 +162,22 @@ class Fit(NamedTuple):
     detected: float
     #: Fraction of the objects with at least one ground-truth grasp (the objects Acc-T counts) whose best such
     #: detection's most stable candidate matches a ground-truth grasp of the object (the mAP-G criterion of
-    #: Table II: Jaccard > 0.25, angle within 30 degrees) with the task of a matched grasp as its most
-    #: probable task: the train Acc-T top-1 of the eval-mode detections, an undetected object a miss.
+    #: Table II: Jaccard > 0.25, angle within 30 degrees) with the task of the nearest matched grasp as its
+    #: most probable task: the train Acc-T top-1 of the eval-mode detections, an undetected object a miss.
     grasped: float
     #: The same with the grasp branch run on the ground-truth boxes: how well the grasp head alone fits.
     grasped_on_true_boxes: float
 
 
 def top1_is_right(rectangles, stability, task_probs, grasps, tasks) -> bool:
-    """Whether the most stable of a RoI's candidates matches one of ``grasps`` with a matched grasp's task.
+    """Whether the most stable of a RoI's candidates matches one of ``grasps`` with a right task, as Acc-T
+    top-1 judges it with ``unmatched_task="wrong"`` (:func:`togcrf.metrics.right_tasks`).
 
     Shapes: rectangles (196, 5), stability (196,), task_probs (196, 12), grasps (M, 5), tasks (M,).
     """
     best = int(stability.argmax())
-    matches = grasp_match_matrix(rectangles[best].numpy()[None], grasps.numpy())[0]
-    return int(task_probs[best].argmax()) in set(tasks[torch.from_numpy(matches)].tolist())
+    right = right_tasks(rectangles[best].numpy()[None], grasps.numpy(), tasks.numpy(), unmatched_task="wrong")[0]
+    return int(task_probs[best].argmax()) in right
 
 
 def fitted_fractions(data_dir, run_dir, samples: int, pipeline: str = "synthetic") -> Fit:
