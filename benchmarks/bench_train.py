@@ -1,15 +1,26 @@
-"""Training throughput and peak memory of the TOG-CRFs model per backbone.
+"""Training throughput and peak memory: the CPU recipe beside the configuration it replaced.
 
-Each backbone runs in its own child process, so that the peak resident
-memory (``ru_maxrss``) belongs to that backbone alone. A child writes
-synthetic samples (tests/helpers.py), trains ``--warmup`` steps untimed,
-then ``--steps`` timed steps of ``--batch-size`` images at ``--image-size``
-px with the default model options, and prints one JSON line.
+Each configuration runs in its own child process, so that the peak resident
+memory (``ru_maxrss``) belongs to it alone, and all run in the same
+invocation, so the ratio compares like with like on one machine:
+
+- ``before``: the training of commit 4bf0b66 (issue #15's review): TOG at
+  192 px, batch 2, torchvision's FPN from stride 4 with 256 channels and no
+  normalisation, 256 RCNN RoIs per image, a 1024-wide box head, 256-channel
+  grasp blocks, 16 px grasp anchors and a scale jitter of +-10 % (images up
+  to 211 px, padded to 224);
+- ``recipe``: ``togcrf.reproduce.CPU_SCALE`` (its model options, batch size,
+  image size and scale jitter).
+
+A child trains ``--warmup`` steps untimed, then ``--steps`` timed steps, on
+real samples (``--data DIR --pipeline P``: the first training samples) or,
+without ``--data``, on synthetic samples (tests/helpers.py), and prints one
+JSON line.
 
 Usage::
 
-    python benchmarks/bench_train.py                       # CPU, 128 px, resnet18/34/50/101
-    python benchmarks/bench_train.py --device cuda --image-size 512 --batch-size 4
+    python benchmarks/bench_train.py                                   # synthetic samples
+    python benchmarks/bench_train.py --data data --pipeline recipe     # the recipe's data
 """
 
 from __future__ import annotations
@@ -25,100 +36,138 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+#: Model options of the training before the recipe (the defaults of commit 4bf0b66).
+BEFORE_OPTIONS = {"fpn_norm": False, "grasp_trunk_norm": False, "fpn_min_stride": 4, "fpn_channels": 256,
+                  "rpn_anchor_sizes": [16, 32, 64, 128, 256], "box_batch_per_image": 256, "box_head_size": 1024,
+                  "grasp_channels": 256, "rpn_pre_nms_train": 1000, "rpn_post_nms_train": 500,
+                  "grasp_anchor_size": 16.0}
 
-def child(arguments: argparse.Namespace) -> None:
+
+def configurations() -> dict[str, dict]:
+    """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down"}."""
+    from togcrf.reproduce import CPU_SCALE  # noqa: PLC0415
+
+    return {
+        "before": {"model_options": BEFORE_OPTIONS, "batch_size": 2, "image_size": 192, "jitter_up": 0.1,
+                   "jitter_down": 0.1},
+        "recipe": {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
+                   "image_size": CPU_SCALE.image_size, "jitter_up": 0.0, "jitter_down": CPU_SCALE.scale_jitter},
+    }
+
+
+def _batches(arguments: argparse.Namespace, setting: dict, count: int) -> list:
+    """``count`` collated batches, each image scaled by a draw from the setting's jitter range."""
+    import numpy as np  # noqa: PLC0415
     import torch  # noqa: PLC0415
 
+    from togcrf.data import (  # noqa: PLC0415
+        Augmentation,
+        SamplesDataset,
+        augment,
+        collate,
+        drop_degenerate_objects,
+        normalise_depth,
+        resize_scale,
+        sample_targets,
+    )
+
+    def load(directory: str, pipeline: str | None) -> list:
+        dataset = SamplesDataset(directory, pipeline=pipeline, split="train", max_samples=count * setting["batch_size"])
+        rng = np.random.default_rng(0)
+        items = []
+        for index in range(len(dataset)):
+            sample = dataset.read_sample(index)
+            scale = float(rng.uniform(1 - setting["jitter_down"], 1 + setting["jitter_up"]))
+            images, boxes, rectangles = augment([normalise_depth(sample.depth)], sample.boxes,
+                                                sample.grasp_rectangles, Augmentation(scale=scale),
+                                                resize_scale(sample.depth.shape, setting["image_size"]))
+            targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles))
+            items.append((torch.from_numpy(images[0])[None], targets, sample.sample_id))
+        size = setting["batch_size"]
+        return [collate(items[start:start + size]) for start in range(0, len(items) - size + 1, size)]
+
+    if arguments.data:
+        return load(arguments.data, arguments.pipeline)
     sys.path.insert(0, str(ROOT / "tests"))
     from helpers import write_synthetic_samples  # noqa: PLC0415
 
     from osgd.store import ShardStore  # noqa: PLC0415
-    from togcrf.data import SamplesDataset, collate  # noqa: PLC0415
+
+    with tempfile.TemporaryDirectory() as directory:
+        write_synthetic_samples(ShardStore(directory), count * setting["batch_size"], height=320, width=320,
+                                test_every=10**9)
+        return load(directory, "synthetic")
+
+
+def child(arguments: argparse.Namespace) -> None:
+    import torch  # noqa: PLC0415
+
     from togcrf.model import build_model  # noqa: PLC0415
 
+    setting = configurations()[arguments.configuration]
+    batches = _batches(arguments, setting, 4)
     torch.manual_seed(0)
-    device = torch.device(arguments.device)
-    with tempfile.TemporaryDirectory() as directory:
-        write_synthetic_samples(ShardStore(directory), arguments.batch_size * 2,
-                                height=arguments.image_size, width=arguments.image_size)
-        dataset = SamplesDataset(directory, pipeline="synthetic", split=None, image_size=arguments.image_size,
-                                 augment=True)
-        batches = [collate([dataset[index] for index in range(start, start + arguments.batch_size)])
-                   for start in (0, arguments.batch_size)]
-    model = build_model("tog-crfs", arguments.backbone).to(device)
+    model = build_model("tog", arguments.backbone, **setting["model_options"])
     model.train()
     optimizer = torch.optim.SGD(model.parameters(), lr=0.001, momentum=0.9)
-    use_amp = device.type == "cuda"
 
     def step(index: int) -> None:
-        images, targets, _ = batches[index % 2]
-        images = [image.to(device) for image in images]
-        targets = [{key: value.to(device) for key, value in target.items()} for target in targets]
-        with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=use_amp):
-            losses = model(images, targets)
+        images, targets, _ = batches[index % len(batches)]
+        losses = model(images, targets)
         optimizer.zero_grad()
         sum(losses.values()).backward()
         optimizer.step()
 
     for index in range(arguments.warmup):
         step(index)
-    if device.type == "cuda":
-        torch.cuda.synchronize()
-        torch.cuda.reset_peak_memory_stats()
     started = time.perf_counter()
     for index in range(arguments.steps):
         step(index)
-    if device.type == "cuda":
-        torch.cuda.synchronize()
     seconds = time.perf_counter() - started
-    result = {
-        "backbone": arguments.backbone,
-        "device": arguments.device,
-        "image_size": arguments.image_size,
-        "batch_size": arguments.batch_size,
+    print(json.dumps({
+        "configuration": arguments.configuration,
+        "batch_size": setting["batch_size"],
+        "image_size": setting["image_size"],
         "threads": torch.get_num_threads(),
         "seconds_per_step": seconds / arguments.steps,
-        "images_per_second": arguments.steps * arguments.batch_size / seconds,
+        "images_per_second": arguments.steps * setting["batch_size"] / seconds,
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "parameters_millions": sum(parameter.numel() for parameter in model.parameters()) / 1e6,
-    }
-    if device.type == "cuda":
-        result["peak_cuda_mib"] = torch.cuda.max_memory_allocated() / 2**20
-    print(json.dumps(result))
+    }))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--backbones", nargs="+", default=["resnet18", "resnet34", "resnet50", "resnet101"])
-    parser.add_argument("--backbone", help=argparse.SUPPRESS)
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--image-size", type=int, default=128)
-    parser.add_argument("--batch-size", type=int, default=2)
-    parser.add_argument("--steps", type=int, default=3)
-    parser.add_argument("--warmup", type=int, default=1)
+    parser.add_argument("--data", help="Data dir with samples shards (default: synthetic samples).")
+    parser.add_argument("--pipeline", default=None, help="Pipeline whose samples to read from --data.")
+    parser.add_argument("--backbone", default="resnet18")
+    parser.add_argument("--steps", type=int, default=6)
+    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--configuration", help=argparse.SUPPRESS)
     arguments = parser.parse_args()
-    if arguments.backbone:
+    if arguments.configuration:
         child(arguments)
         return
-    print(f"TOG-CRFs training, {arguments.device}, {arguments.image_size} px, batch {arguments.batch_size}, "
-          f"{arguments.steps} timed steps after {arguments.warmup}")
-    print(f"{'backbone':<10} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9}")
-    for backbone in arguments.backbones:
-        command = [sys.executable, __file__, "--backbone", backbone, "--device", arguments.device,
-                   "--image-size", str(arguments.image_size), "--batch-size", str(arguments.batch_size),
+    print(f"TOG training on the CPU, {arguments.backbone}, {arguments.steps} timed steps after "
+          f"{arguments.warmup}, {'samples of ' + arguments.data if arguments.data else 'synthetic samples'}")
+    print(f"{'configuration':<14} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9}")
+    results = {}
+    for name in configurations():
+        command = [sys.executable, __file__, "--configuration", name, "--backbone", arguments.backbone,
                    "--steps", str(arguments.steps), "--warmup", str(arguments.warmup)]
+        if arguments.data:
+            command += ["--data", arguments.data] + (["--pipeline", arguments.pipeline] if arguments.pipeline else [])
         completed = subprocess.run(command, capture_output=True, text=True, check=False, cwd=ROOT)
         if completed.returncode != 0:
-            print(f"{backbone:<10} failed: {completed.stderr.strip().splitlines()[-1:]}")
+            print(f"{name:<14} failed: {completed.stderr.strip().splitlines()[-1:]}")
             continue
-        result = json.loads(completed.stdout.strip().splitlines()[-1])
-        line = (f"{backbone:<10} {result['seconds_per_step']:>8.2f} {result['images_per_second']:>8.2f} "
-                f"{result['peak_rss_mib']:>13.0f} {result['parameters_millions']:>9.1f}")
-        if "peak_cuda_mib" in result:
-            line += f"  peak CUDA {result['peak_cuda_mib']:.0f} MiB"
-        print(line)
-    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    print(f"largest child peak RSS: {children:.0f} MiB")
+        result = results[name] = json.loads(completed.stdout.strip().splitlines()[-1])
+        print(f"{name:<14} {result['batch_size']:>5} {result['seconds_per_step']:>8.2f} "
+              f"{result['images_per_second']:>8.2f} {result['peak_rss_mib']:>13.0f} "
+              f"{result['parameters_millions']:>9.1f}")
+    if len(results) == 2:
+        ratio = results["recipe"]["images_per_second"] / results["before"]["images_per_second"]
+        print(f"recipe / before: {ratio:.2f}x images per second")
 
 
 if __name__ == "__main__":

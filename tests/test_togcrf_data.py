@@ -115,6 +115,23 @@ def test_depth_normalisation_is_height_above_the_table():
     assert tensor[0, 30, 40].item() == pytest.approx(0.5, abs=1e-5)
 
 
+def test_depth_normalisation_removes_a_tilted_table():
+    """A camera tilted over a table sees a depth ramp; the input is the height above the table everywhere."""
+    rows, columns = np.mgrid[0:120, 0:160]
+    inverse_depth = 1.0 / 0.8 + 0.0009 * (columns - 80) + 0.0004 * (rows - 60)  # a plane: 1/z affine in pixels
+    table = 1.0 / inverse_depth
+    assert table.max() - table.min() > 0.05  # a 5 cm ramp across the image, more than a tool's height
+    depth = table.copy()
+    depth[30:60, 20:70] -= 0.03  # a 3 cm high tool lying on the table
+    depth[80:90, 100:150] -= 0.012
+    depth[5, 5] = 0.0  # no reading
+    height = normalise_depth(depth.astype(np.float32)) * DEPTH_UNIT
+    assert np.abs(height[100:, :]).max() < 1e-4  # bare table: 0 everywhere despite the ramp
+    assert height[45, 45] == pytest.approx(0.03, abs=2e-4)
+    assert height[85, 120] == pytest.approx(0.012, abs=2e-4)
+    assert height[5, 5] == 0.0
+
+
 def test_dataset_streams_the_split_with_targets_in_the_network_frame(synthetic_dir):
     train = SamplesDataset(synthetic_dir, pipeline="synthetic", split="train", image_size=96)
     test = SamplesDataset(synthetic_dir, pipeline="synthetic", split="test", image_size=96)

@@ -66,6 +66,22 @@ def test_eval_writes_the_table_row(trained: tuple[Path, Path], tmp_path: Path) -
     assert [row["name"] for row in json.loads(table_json.read_text())["rows"]] == ["TOG-CRFs", "TOG"]
 
 
+def test_eval_under_the_lab_protocol(trained: tuple[Path, Path], tmp_path: Path) -> None:
+    """`eval --protocol lab` scores the same checkpoint by the lab's rules and says so (Acc-T is shared)."""
+    data_dir, checkpoint = trained
+    documents = {}
+    for protocol in ("ours", "lab"):
+        out = tmp_path / f"{protocol}.json"
+        result = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data_dir), "--pipeline",
+                                          "synthetic", "--out", str(out), "--speed-images", "0",
+                                          "--protocol", protocol])
+        assert result.exit_code == 0, result.output
+        assert result.output.startswith(f"Algorithm [protocol: {protocol}]")
+        documents[protocol] = json.loads(out.read_text())
+        assert documents[protocol]["protocol"] == documents[protocol]["metrics"]["protocol"] == protocol
+    assert documents["lab"]["metrics"]["Acc-T top1"] == documents["ours"]["metrics"]["Acc-T top1"]
+
+
 def test_eval_errors_name_the_problem(trained: tuple[Path, Path], tmp_path: Path) -> None:
     data_dir, checkpoint = trained
     result = CliRunner().invoke(app, ["eval", str(tmp_path / "missing.pt"), "--data", str(data_dir)])

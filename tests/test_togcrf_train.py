@@ -286,3 +286,59 @@ def test_longer_training_fits_the_golden_samples(golden_dir, tmp_path):
     assert_losses_fall(rows, 0.2)
     assert fitted.detected >= 0.9 and fitted.grasped >= 0.9 and fitted.grasped_on_true_boxes >= 0.9, fitted
     assert recent_train_acc_t(rows) >= 0.9, [row["train_acc_t_top1"] for row in rows[-5:]]
+
+
+def test_validation_metrics_per_epoch_and_their_curves(data_dir, tmp_path):
+    """--val-samples holds samples out of training and scores them after every epoch; `curves` draws them."""
+    run_dir = tmp_path / "run"
+    train(quick_config(data_dir, run_dir, epochs=2, max_samples=6, val_samples=2, optimizer="adamw",
+                       lr_schedule="cosine", lr=0.001))
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    assert len(rows) == 2
+    for row in rows:
+        assert int(row["samples"]) == 4  # 6 samples less the 2 held out
+        for column in ("val_mAP", "val_mAP-G", "val_Acc-T top1"):
+            assert row[column] != ""
+        assert 0.0 <= float(row["val_mAP"]) <= 1.0
+        assert float(row["images_per_second"]) > 0
+    held_out = json.loads((run_dir / "config.json").read_text())["data_identity"]["validation_samples"]
+    assert len(held_out) == 2
+    # the cosine schedule ends the run at a learning rate of 0 (warm-up of 1 step)
+    assert float(rows[-1]["lr"]) == pytest.approx(0.0, abs=1e-12)
+    result = CliRunner().invoke(app, ["curves", str(run_dir), "--out", str(tmp_path / "curves.png")])
+    assert result.exit_code == 0, result.output
+    image = (tmp_path / "curves.png").read_bytes()
+    assert image[:8] == b"\x89PNG\r\n\x1a\n" and len(image) > 10_000
+    missing = CliRunner().invoke(app, ["curves", str(tmp_path / "nothing"), "--out", str(tmp_path / "x.png")])
+    assert missing.exit_code == 1 and "no metrics.csv" in missing.output
+
+
+def test_time_budget_ends_the_run_and_resume_does_not_continue_it(data_dir, tmp_path):
+    run_dir = tmp_path / "run"
+    result = train(quick_config(data_dir, run_dir, epochs=5, max_samples=4, time_budget_minutes=1e-6))
+    assert result["steps"] == 1  # the first step already spends the budget
+    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    assert checkpoint["epoch"] == 0 and checkpoint["stopped_by_budget"]
+    assert train(quick_config(data_dir, run_dir, epochs=5, max_samples=4, time_budget_minutes=1e-6,
+                              resume=True)) == {}
+
+
+def test_training_options_are_checked(data_dir, tmp_path):
+    for change, message in (({"optimizer": "adam"}, "--optimizer"), ({"lr_schedule": "linear"}, "--lr-schedule"),
+                            ({"scale_jitter": 1.5}, "--scale-jitter"), ({"val_samples": 12}, "--val-samples")):
+        with pytest.raises(ValueError, match=message):
+            train(quick_config(data_dir, tmp_path / "run", max_samples=12, **change))
+
+
+def test_cli_prints_progress_lines_off_a_terminal(data_dir, tmp_path):
+    arguments = ["train", "--data", str(data_dir), "--pipeline", "synthetic", "--out", str(tmp_path / "run"),
+                 "--model", "tog", "--backbone", "resnet18", "--epochs", "1", "--batch-size", "2",
+                 "--max-samples", "4", "--image-size", "64", "--device", "cpu"]
+    arguments += [item for name, value in SMALL.items() for item in ("--option", f"{name}={value}")]
+    result = CliRunner().invoke(app, arguments)
+    assert result.exit_code == 0, result.output
+    # CliRunner's stdout is not a terminal: a line per step interval (here the last step) and per epoch
+    assert "epoch 1/1 step 2/2: loss" in result.output and "images/s" in result.output
+    assert "run left" in result.output
+    log = (tmp_path / "run" / "train.log").read_text()
+    assert "epoch 1/1 step 2/2" in log and "epoch 1/1 done" in log

@@ -21,6 +21,7 @@ app = typer.Typer(
 #: Modules that add commands, in the order they appear in --help.
 COMMAND_MODULES = (
     "togcrf.train",
+    "togcrf.curves",
     "togcrf.evaluate",
     "togcrf.predict",
     "togcrf.figures",

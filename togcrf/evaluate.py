@@ -7,7 +7,9 @@ in the paper's Table II (percentages; speed in frames per second).
 
 An evaluation JSON (``eval.json`` next to the checkpoint unless ``--out``
 says otherwise) holds ``model``, ``checkpoint``, ``data``, ``pipeline``,
-``split``, ``metrics`` (fractions; see :meth:`TableTwoEvaluator.result`),
+``split``, ``protocol`` (``ours`` or ``lab``, the rules of mAP and mAP-G,
+see :mod:`togcrf.metrics`; a file without it predates the option and is
+``ours``), ``metrics`` (fractions; see :meth:`TableTwoEvaluator.result`),
 ``speed`` (see :func:`togcrf.metrics.measure_speed`) and ``row`` (the Table
 II numbers as printed).
 """
@@ -25,7 +27,7 @@ import numpy as np
 import torch
 import typer
 
-from togcrf.metrics import TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
+from togcrf.metrics import PROTOCOLS, TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +99,7 @@ def evaluate_model(
     device: str = "cpu",
     speed_images: int = 10,
     unmatched_task: str = "nearest",
+    protocol: str = "ours",
 ) -> dict[str, Any]:
     """Table II metrics and speed of a model on samples.
 
@@ -113,20 +116,22 @@ def evaluate_model(
         (after the metrics pass, so the model is warm; 0 skips it).
     unmatched_task : {"nearest", "wrong"}
         See :mod:`togcrf.metrics` (Acc-T).
+    protocol : {"ours", "lab"}
+        The rules of mAP and mAP-G (:mod:`togcrf.metrics`, Protocols).
 
     Returns
     -------
     dict
-        ``metrics`` and ``speed`` (None when skipped).
+        ``metrics`` (with its ``protocol``) and ``speed`` (None when skipped).
 
     Raises
     ------
     ValueError
-        If there are no samples.
+        If there are no samples, or the protocol is unknown.
     """
     from togcrf.data import depth_to_tensor  # noqa: PLC0415
 
-    evaluator = TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task)
+    evaluator = TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task, protocol=protocol)
     kept_images: list[torch.Tensor] = []
     model.eval()
     for sample in samples:
@@ -188,6 +193,7 @@ def evaluate_checkpoint(
     max_samples: int | None = None,
     speed_images: int = 10,
     unmatched_task: str = "nearest",
+    protocol: str = "ours",
 ) -> dict[str, Any]:
     """Load a checkpoint and evaluate it on a split of a data dir.
 
@@ -201,13 +207,15 @@ def evaluate_checkpoint(
     FileNotFoundError
         If the checkpoint or the data do not exist.
     ValueError
-        If the split has no samples.
+        If the split has no samples, or the protocol is unknown.
     """
     from itertools import islice  # noqa: PLC0415
 
     from osgd.samples.reader import iter_samples  # noqa: PLC0415
     from togcrf.train import load_checkpoint  # noqa: PLC0415
 
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}: expected one of {', '.join(PROTOCOLS)}")
     checkpoint = Path(checkpoint)
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
@@ -217,7 +225,7 @@ def evaluate_checkpoint(
         samples = islice(samples, max_samples)
     try:
         result = evaluate_model(model, samples, config.get("image_size"), device=device,
-                                speed_images=speed_images, unmatched_task=unmatched_task)
+                                speed_images=speed_images, unmatched_task=unmatched_task, protocol=protocol)
     except ValueError as error:
         raise ValueError(f"{data_dir}: split {split!r}: {error}") from error
     result = {
@@ -227,6 +235,7 @@ def evaluate_checkpoint(
         "pipeline": pipeline,
         "split": split,
         "unmatched_task": unmatched_task,
+        "protocol": protocol,
         "torch_threads": torch.get_num_threads(),
         **result,
     }
@@ -234,10 +243,23 @@ def evaluate_checkpoint(
     return result
 
 
-def format_table(rows: Sequence[tuple[str, dict[str, float | None]]]) -> str:
-    """Table II as fixed-width text: one line per (name, row)."""
-    name_width = max([len("Algorithm"), *(len(name) for name, _ in rows)])
-    header = "Algorithm".ljust(name_width) + "".join(f"{column:>13}" for column in TABLE_COLUMNS)
+def format_table(rows: Sequence[tuple[str, dict[str, float | None]]], protocol: str | None = None) -> str:
+    """Table II as fixed-width text: one line per (name, row).
+
+    Parameters
+    ----------
+    rows : sequence of (str, dict)
+        Name and :func:`table_row` of each line.
+    protocol : str, optional
+        Named in the header (``Algorithm [protocol: lab]``) when given.
+
+    Returns
+    -------
+    str
+    """
+    title = "Algorithm" if protocol is None else f"Algorithm [protocol: {protocol}]"
+    name_width = max([len(title), *(len(name) for name, _ in rows)])
+    header = title.ljust(name_width) + "".join(f"{column:>13}" for column in TABLE_COLUMNS)
     lines = [header, "-" * len(header)]
     for name, row in rows:
         cells = "".join(f"{'-':>13}" if row.get(column) is None else f"{row[column]:>13.1f}"
@@ -264,6 +286,11 @@ def read_evaluation(path: Path) -> dict[str, Any]:
         raise ValueError(f"{file}: not an evaluation JSON ({error})") from error
 
 
+def document_protocol(document: dict[str, Any]) -> str:
+    """The protocol of an evaluation document; ``ours`` for one written before protocols existed."""
+    return str(document.get("protocol") or document.get("metrics", {}).get("protocol") or "ours")
+
+
 def row_name(document: dict[str, Any]) -> str:
     """The paper's name of an evaluated model, or its own name."""
     model = str(document.get("model", "unknown"))
@@ -284,18 +311,20 @@ def eval_command(
     max_samples: Annotated[int | None, typer.Option(help="Evaluate only the first N samples of the split.")] = None,
     speed_images: Annotated[int, typer.Option(help="Images timed for the speed (batch 1, after warm-up).")] = 10,
     unmatched_task: Annotated[str, typer.Option(help="Acc-T: 'nearest' or 'wrong' (togcrf.metrics).")] = "nearest",
+    protocol: Annotated[str, typer.Option(help="mAP / mAP-G rules: 'ours' or 'lab' (the lab's evaluator; "
+                                               "togcrf.metrics).")] = "ours",
 ) -> None:
     """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON."""
     try:
         document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split, device=device,
                                        max_samples=max_samples, speed_images=speed_images,
-                                       unmatched_task=unmatched_task)
+                                       unmatched_task=unmatched_task, protocol=protocol)
     except (FileNotFoundError, ValueError, KeyError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     path = out if out is not None else Path(checkpoint).parent / EVAL_FILE
     write_json(path, document)
-    typer.echo(format_table([(row_name(document), document["row"])]))
+    typer.echo(format_table([(row_name(document), document["row"])], protocol=document_protocol(document)))
     metrics = document["metrics"]
     typer.echo(f"{metrics['images']} images, {metrics['rois']} RoIs judged for Acc-T; "
                f"speed on {document['speed']['device'] if document['speed'] else '-'} "
@@ -305,21 +334,32 @@ def eval_command(
 def table_command(
     run_dirs: Annotated[list[Path], typer.Argument(help=f"Run dirs holding {EVAL_FILE}, or evaluation JSONs.")],
     out: Annotated[Path | None, typer.Option(help="Also write the table as JSON here.")] = None,
+    mixed: Annotated[bool, typer.Option("--mixed", help="Allow evaluations of different protocols, "
+                                                        "each row marked with its own.")] = False,
 ) -> None:
-    """Print Table II for several evaluated runs side by side."""
+    """Print Table II for several evaluated runs side by side, headed by the protocol that made it."""
     rows = []
     try:
         documents = [read_evaluation(path) for path in run_dirs]
     except (FileNotFoundError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
-    for document in documents:
-        rows.append((row_name(document), document.get("row") or table_row(document)))
-    typer.echo(format_table(rows))
+    protocols = [document_protocol(document) for document in documents]
+    if len(set(protocols)) > 1 and not mixed:
+        listing = "; ".join(f"{path}: {protocol}" for path, protocol in zip(run_dirs, protocols, strict=True))
+        typer.echo(f"error: the evaluations mix protocols ({listing}); evaluate them all with one "
+                   "`togcrf eval --protocol`, or pass --mixed to print each row marked", err=True)
+        raise typer.Exit(1)
+    protocol = protocols[0] if len(set(protocols)) == 1 else "mixed"
+    for document, row_protocol in zip(documents, protocols, strict=True):
+        name = row_name(document) + (f" [{row_protocol}]" if protocol == "mixed" else "")
+        rows.append((name, document.get("row") or table_row(document)))
+    typer.echo(format_table(rows, protocol=protocol))
     if out is not None:
-        write_json(out, {"columns": list(TABLE_COLUMNS),
-                         "rows": [{"name": name, "source": str(path), **row}
-                                  for (name, row), path in zip(rows, run_dirs, strict=True)]})
+        write_json(out, {"columns": list(TABLE_COLUMNS), "protocol": protocol,
+                         "rows": [{"name": name, "source": str(path), "protocol": row_protocol, **row}
+                                  for (name, row), path, row_protocol in zip(rows, run_dirs, protocols,
+                                                                              strict=True)]})
 
 
 def register(app: typer.Typer) -> None:

@@ -40,7 +40,7 @@ from torchvision.models.detection.image_list import ImageList
 from osgd.taxonomy import TASKS
 from togcrf.anchors import ANCHOR_ANGLES, decode, match
 from togcrf.losses import grasp_losses, top1_task_hits
-from togcrf.model import FPN_CHANNELS, GraspHead, ModelOptions, TogDetector
+from togcrf.model import GraspHead, ModelOptions, TogDetector, fpn_strides
 
 log = logging.getLogger(__name__)
 
@@ -119,11 +119,14 @@ class FcgnTask(TogDetector):
     def __init__(self, backbone: str = "resnet18", **options) -> None:
         fcgn = FcgnOptions.from_dict(options)
         super().__init__(backbone, crf_terms=None, options=fcgn)
-        if not 0 <= fcgn.fcgn_level <= 3:
-            raise ValueError(f"fcgn_level must be 0-3 (FPN strides 4-32), got {fcgn.fcgn_level}")
+        strides = fpn_strides(fcgn)
+        if not 0 <= fcgn.fcgn_level < len(strides):
+            raise ValueError(f"fcgn_level must be 0-{len(strides) - 1} (FPN strides {strides}), "
+                             f"got {fcgn.fcgn_level}")
         # The TOG RoI head is replaced: FCGN predicts grasps on the whole image instead.
-        self.grasp_head = GraspHead(FPN_CHANNELS, fcgn.fcgn_channels, fcgn.norm, blocks=fcgn.fcgn_blocks)
-        self.stride = 2 ** (fcgn.fcgn_level + 2)
+        self.grasp_head = GraspHead(fcgn.fpn_channels, fcgn.fcgn_channels, fcgn.norm, blocks=fcgn.fcgn_blocks,
+                                    output_norm=fcgn.grasp_trunk_norm)
+        self.stride = strides[fcgn.fcgn_level]
 
     def image_grasps(self, features: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         """Grasp outputs over the whole feature map of every image.

@@ -20,8 +20,9 @@ Detection matching (mAP)
     Per image and category, detections are visited by decreasing score
     (ties: the model's order); each claims the unclaimed ground-truth box of
     its category with the highest IoU, if that IoU is larger than 0.5;
-    otherwise it is a false positive. This is the greedy COCO / ROI-GD rule,
-    which pycocotools also follows, so the two agree.
+    otherwise it is a false positive. This is the greedy rule of COCO
+    (pycocotools follows it, so the two agree). It is *not* the rule of
+    ROI-GD and the TOG paper's lab: see Protocols below.
 Average precision
     All-point interpolated (PASCAL VOC 2010 and later): the area under the
     precision-recall curve after replacing each precision by the largest
@@ -49,6 +50,44 @@ Acc-T top-k
 Speed
     Frames per second of the full model on one image at a time (batch 1),
     after warm-up runs, on a stated device; see :func:`measure_speed`.
+
+Protocols
+---------
+``"ours"`` (the default) is the set of rules above. ``"lab"`` reproduces the
+public evaluator of the paper's lab (ZhangHanbo/Visual-Manipulation-
+Relationship-Network-Pytorch: ``datasets/voc_eval.py`` with
+``use_07_metric=True`` for mAP, ``datasets/vmrd.py``
+``evaluate_multigrasp_MRFPPI`` for mAP-G), which ROI-GD used:
+
+- Box IoU with the +1-pixel convention (widths ``x2 - x1 + 1``).
+- mAP: by decreasing score, a detection looks only at the ground-truth box
+  of its category of highest IoU in its image; it is a true positive if
+  that IoU is > 0.5 and that box is unclaimed, else a false positive (it
+  may not fall back to its second-best box). AP is VOC07's 11-point
+  average: the largest precision at recall >= t for t in
+  ``np.arange(0, 1.1, 0.1)``, averaged (the thresholds are numpy's, so a
+  recall of exactly 0.3, 0.6 or 0.7 falls just short of its threshold, as
+  in the lab's code).
+- mAP-G: per image and category, the ground-truth objects of the category
+  are counted (recall's denominator) only if the image has a detection of
+  that category. The objects, in annotation order, each take the
+  highest-scored free detection of their category whose box IoU is > 0.5
+  and whose top-1 grasp matches one of the object's grasps. AP is
+  all-point, as ours. A category with no detection at all scores 0; one
+  whose detections all lie in images without its ground truth has nothing
+  counted and is left out of the mean (the lab's NaN).
+- Both means run over the categories with ground truth in the evaluated
+  images (the lab's code averages over every class of its dataset; where
+  every class has objects in the evaluated images the two coincide).
+- Acc-T and speed are the same under both protocols (the lab's evaluator
+  has no Acc-T); Acc-T keeps our matching.
+
+Not reproduced: the lab writes detection files with scores rounded to 3
+decimals and boxes to 0.1 pixel, and breaks score ties with numpy's
+unstable sort; here ties keep the model's order. Its mAP-G code also marks
+a true positive at the detection's sorted position in the unsorted array,
+which is the detection meant whenever each category's detections come in
+decreasing score order, as after NMS; here the detection meant is marked.
 """
 
 from __future__ import annotations
@@ -74,6 +113,11 @@ GRASP_JACCARD_THRESHOLD = 0.25
 GRASP_ANGLE_TOLERANCE = np.deg2rad(30.0)
 #: The k of Acc-T top-k reported in Table II.
 TOP_K = (1, 5, 10)
+#: The evaluation protocols (see the module docstring): ours, the default, and the lab's.
+PROTOCOLS = ("ours", "lab")
+Protocol = Literal["ours", "lab"]
+#: Recall thresholds of VOC07's 11-point AP, computed as the lab's code does (0.3 is 0.30000000000000004).
+ELEVEN_POINT_RECALLS = np.arange(0.0, 1.1, 0.1)
 
 
 # --------------------------------------------------------------------------- geometry
@@ -187,13 +231,16 @@ def grasp_match_matrix(detected: np.ndarray, ground_truth: np.ndarray) -> np.nda
     return angles_close & (jaccard > GRASP_JACCARD_THRESHOLD)
 
 
-def box_iou(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """IoU of axis-aligned boxes ``x1, y1, x2, y2`` (continuous, no +1 pixel).
+def box_iou(first: np.ndarray, second: np.ndarray, *, plus_one: bool = False) -> np.ndarray:
+    """IoU of axis-aligned boxes ``x1, y1, x2, y2``.
 
     Parameters
     ----------
     first : (P, 4) array
     second : (M, 4) array
+    plus_one : bool
+        False (ours): continuous boxes, width ``x2 - x1``. True (the lab's
+        and VOC's code): inclusive pixel boxes, width ``x2 - x1 + 1``.
 
     Returns
     -------
@@ -201,11 +248,12 @@ def box_iou(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     """
     first = np.asarray(first, dtype=np.float64).reshape(-1, 4)
     second = np.asarray(second, dtype=np.float64).reshape(-1, 4)
+    pad = 1.0 if plus_one else 0.0
     top_left = np.maximum(first[:, None, :2], second[None, :, :2])
     bottom_right = np.minimum(first[:, None, 2:], second[None, :, 2:])
-    intersection = np.prod(np.clip(bottom_right - top_left, 0, None), axis=-1)
-    area_first = np.prod(np.clip(first[:, 2:] - first[:, :2], 0, None), axis=-1)
-    area_second = np.prod(np.clip(second[:, 2:] - second[:, :2], 0, None), axis=-1)
+    intersection = np.prod(np.clip(bottom_right - top_left + pad, 0, None), axis=-1)
+    area_first = np.prod(np.clip(first[:, 2:] - first[:, :2] + pad, 0, None), axis=-1)
+    area_second = np.prod(np.clip(second[:, 2:] - second[:, :2] + pad, 0, None), axis=-1)
     union = area_first[:, None] + area_second[None, :] - intersection
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(union > 0, intersection / union, 0.0)
@@ -232,20 +280,61 @@ def average_precision(scores: np.ndarray, true_positive: np.ndarray, ground_trut
     """
     if ground_truth_count <= 0:
         return float("nan")
-    scores = np.asarray(scores, dtype=np.float64)
     if len(scores) == 0:
         return 0.0
-    order = np.argsort(-scores, kind="stable")
-    hits = np.asarray(true_positive, dtype=bool)[order]
-    true_cumulative = np.cumsum(hits)
-    false_cumulative = np.cumsum(~hits)
-    recall = true_cumulative / ground_truth_count
-    precision = true_cumulative / (true_cumulative + false_cumulative)
+    recall, precision = precision_recall(scores, true_positive, ground_truth_count)
     recall = np.concatenate([[0.0], recall, [recall[-1]]])
     precision = np.concatenate([[0.0], precision, [0.0]])
     envelope = np.maximum.accumulate(precision[::-1])[::-1]
     steps = np.nonzero(recall[1:] != recall[:-1])[0]
     return float(np.sum((recall[steps + 1] - recall[steps]) * envelope[steps + 1]))
+
+
+def precision_recall(scores: np.ndarray, true_positive: np.ndarray,
+                     ground_truth_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Recall and precision after each detection, by decreasing score (ties: given order).
+
+    Parameters
+    ----------
+    scores : (D,) array
+    true_positive : (D,) bool array
+    ground_truth_count : int
+        Positive.
+
+    Returns
+    -------
+    recall, precision : (D,) float64 arrays
+    """
+    order = np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable")
+    hits = np.asarray(true_positive, dtype=bool)[order]
+    true_cumulative = np.cumsum(hits)
+    recall = true_cumulative / ground_truth_count
+    return recall, true_cumulative / np.arange(1, len(hits) + 1)
+
+
+def average_precision_11_point(scores: np.ndarray, true_positive: np.ndarray, ground_truth_count: int) -> float:
+    """VOC07's 11-point interpolated average precision of one category (the lab's mAP).
+
+    The mean over the recall thresholds :data:`ELEVEN_POINT_RECALLS` of the
+    largest precision at a recall >= the threshold (0 where none reaches it).
+
+    Parameters
+    ----------
+    scores : (D,) array
+    true_positive : (D,) bool array
+    ground_truth_count : int
+
+    Returns
+    -------
+    float
+        In [0, 1]; NaN when there is no ground truth.
+    """
+    if ground_truth_count <= 0:
+        return float("nan")
+    if len(scores) == 0:
+        return 0.0
+    recall, precision = precision_recall(scores, true_positive, ground_truth_count)
+    return float(sum(precision[recall >= threshold].max(initial=0.0) for threshold in ELEVEN_POINT_RECALLS) / 11)
 
 
 def match_detections(
@@ -293,6 +382,88 @@ def match_detections(
             best = int(np.argmax(np.where(candidates, iou[detection], -1.0)))
             claimed[best] = True
             matched[detection] = best
+    return matched
+
+
+def match_detections_voc(
+    boxes: np.ndarray,
+    categories: np.ndarray,
+    scores: np.ndarray,
+    ground_truth_boxes: np.ndarray,
+    ground_truth_categories: np.ndarray,
+    *,
+    iou_threshold: float = BOX_IOU_THRESHOLD,
+) -> np.ndarray:
+    """The VOC rule of one image (the lab's mAP): no fall-back to a second-best object.
+
+    By decreasing score, each detection looks at the ground-truth box of its
+    category of highest +1-pixel IoU (the first of equals); it claims it if
+    that IoU is larger than ``iou_threshold`` and the box is unclaimed.
+
+    Parameters
+    ----------
+    boxes, categories, scores, ground_truth_boxes, ground_truth_categories
+        As :func:`match_detections`.
+    iou_threshold : float
+
+    Returns
+    -------
+    (D,) int64 array
+        Row of the claimed ground-truth object, -1 for a false positive.
+    """
+    boxes = np.asarray(boxes).reshape(-1, 4)
+    matched = np.full(len(boxes), -1, dtype=np.int64)
+    same = np.asarray(categories).reshape(-1, 1) == np.asarray(ground_truth_categories).reshape(1, -1)
+    iou = np.where(same, box_iou(boxes, ground_truth_boxes, plus_one=True), -1.0)
+    claimed = np.zeros(same.shape[1], dtype=bool)
+    for detection in np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable"):
+        if not same[detection].any():
+            continue
+        best = int(np.argmax(iou[detection]))
+        if iou[detection, best] > iou_threshold and not claimed[best]:
+            claimed[best] = True
+            matched[detection] = best
+    return matched
+
+
+def match_objects_in_order(
+    boxes: np.ndarray,
+    categories: np.ndarray,
+    scores: np.ndarray,
+    ground_truth_boxes: np.ndarray,
+    ground_truth_categories: np.ndarray,
+    allowed: np.ndarray,
+    *,
+    iou_threshold: float = BOX_IOU_THRESHOLD,
+) -> np.ndarray:
+    """The lab's mAP-G matching of one image: object by object, in annotation order.
+
+    Each ground-truth object takes the highest-scored free detection of its
+    category whose +1-pixel IoU with it is larger than ``iou_threshold``
+    and for which ``allowed`` holds (its top-1 grasp matches one of the
+    object's grasps).
+
+    Parameters
+    ----------
+    boxes, categories, scores, ground_truth_boxes, ground_truth_categories
+        As :func:`match_detections`.
+    allowed : (D, N) bool array
+    iou_threshold : float
+
+    Returns
+    -------
+    (D,) int64 array
+        Row of the object that took the detection, -1 for a false positive.
+    """
+    boxes = np.asarray(boxes).reshape(-1, 4)
+    matched = np.full(len(boxes), -1, dtype=np.int64)
+    same = np.asarray(categories).reshape(-1, 1) == np.asarray(ground_truth_categories).reshape(1, -1)
+    eligible = same & (box_iou(boxes, ground_truth_boxes, plus_one=True) > iou_threshold) & allowed
+    order = np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable")
+    for row in range(eligible.shape[1]):
+        free = order[eligible[order, row] & (matched[order] < 0)]
+        if len(free):
+            matched[free[0]] = row
     return matched
 
 
@@ -391,6 +562,38 @@ def right_tasks(candidates: np.ndarray, object_grasps: np.ndarray, object_tasks:
     return result
 
 
+def grasp_allowed(detections: Detections, truth: GroundTruth) -> np.ndarray:
+    """Which detections may claim which objects for mAP-G: the top-1 grasp matches one of the object's.
+
+    Parameters
+    ----------
+    detections : Detections
+    truth : GroundTruth
+
+    Returns
+    -------
+    (D, N) bool array
+        Detections by objects; category and box overlap are not looked at.
+    """
+    count = len(np.asarray(detections.categories).reshape(-1))
+    grasp_objects = np.asarray(truth.grasp_objects, dtype=np.int64).reshape(-1)
+    truth_grasps = np.asarray(truth.grasp_rectangles, dtype=np.float64).reshape(-1, 5)
+    allowed = np.zeros((count, len(np.asarray(truth.categories).reshape(-1))), dtype=bool)
+    tops = [(detection, detections.top_grasp(detection)) for detection in range(count)]
+    tops = [(detection, top) for detection, top in tops if top is not None]
+    if tops and len(truth_grasps):
+        # One (detections x grasps) match, then per detection the objects owning a matched grasp.
+        matches = grasp_match_matrix(np.stack([top for _, top in tops]), truth_grasps)
+        rows, columns = np.nonzero(matches)
+        allowed[np.array([detection for detection, _ in tops])[rows], grasp_objects[columns]] = True
+    return allowed
+
+
+def _mean_ignoring_nan(values: Mapping[str, float]) -> float:
+    kept = [value for value in values.values() if not np.isnan(value)]
+    return float(np.mean(kept)) if kept else float("nan")
+
+
 @dataclass
 class TableTwoEvaluator:
     """Accumulates detections over images and computes the row of Table II.
@@ -401,6 +604,13 @@ class TableTwoEvaluator:
         The k of Acc-T top-k.
     unmatched_task : {"nearest", "wrong"}
         See the module docstring (Acc-T).
+    protocol : {"ours", "lab"}
+        The rules of mAP and mAP-G (module docstring, Protocols).
+
+    Raises
+    ------
+    ValueError
+        If the protocol is not one of :data:`PROTOCOLS`.
 
     Examples
     --------
@@ -412,13 +622,20 @@ class TableTwoEvaluator:
 
     top_k: Sequence[int] = TOP_K
     unmatched_task: Literal["nearest", "wrong"] = "nearest"
+    protocol: Protocol = "ours"
     _scores: list[np.ndarray] = field(default_factory=list)
     _categories: list[np.ndarray] = field(default_factory=list)
     _box_hits: list[np.ndarray] = field(default_factory=list)
     _grasp_hits: list[np.ndarray] = field(default_factory=list)
     _ground_truth_counts: np.ndarray = field(default_factory=lambda: np.zeros(len(CATEGORIES), dtype=np.int64))
+    _grasp_ground_truth_counts: np.ndarray = field(
+        default_factory=lambda: np.zeros(len(CATEGORIES), dtype=np.int64))
     _task_hits: dict[int, list[bool]] = field(default_factory=dict)
     images: int = 0
+
+    def __post_init__(self) -> None:
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(f"unknown protocol {self.protocol!r}: expected one of {', '.join(PROTOCOLS)}")
 
     def add(self, detections: Detections, truth: GroundTruth) -> None:
         """Add one image's detections and ground truth."""
@@ -428,28 +645,39 @@ class TableTwoEvaluator:
         np.add.at(self._ground_truth_counts, truth_categories, 1)
         box_match = match_detections(detections.boxes, categories, detections.scores, truth.boxes,
                                      truth_categories)
-        grasp_objects = np.asarray(truth.grasp_objects, dtype=np.int64).reshape(-1)
-        truth_grasps = np.asarray(truth.grasp_rectangles, dtype=np.float64).reshape(-1, 5)
-        allowed = np.zeros((len(categories), len(truth_categories)), dtype=bool)
-        tops = [(detection, detections.top_grasp(detection)) for detection in range(len(categories))]
-        tops = [(detection, top) for detection, top in tops if top is not None]
-        if tops and len(truth_grasps):
-            # One (detections x grasps) match, then per detection the objects owning a matched grasp.
-            matches = grasp_match_matrix(np.stack([top for _, top in tops]), truth_grasps)
-            rows, columns = np.nonzero(matches)
-            allowed[np.array([detection for detection, _ in tops])[rows], grasp_objects[columns]] = True
-        grasp_match = match_detections(detections.boxes, categories, detections.scores, truth.boxes,
-                                       truth_categories, allowed=allowed)
+        box_hits, grasp_hits, counted = self._protocol_hits(detections, truth, categories, truth_categories,
+                                                            box_match)
+        np.add.at(self._grasp_ground_truth_counts, counted, 1)
         self._scores.append(np.asarray(detections.scores, dtype=np.float64).reshape(-1))
         self._categories.append(categories)
-        self._box_hits.append(box_match >= 0)
-        self._grasp_hits.append(grasp_match >= 0)
+        self._box_hits.append(box_hits)
+        self._grasp_hits.append(grasp_hits)
+        # Acc-T: our matching under either protocol.
+        grasp_objects = np.asarray(truth.grasp_objects, dtype=np.int64).reshape(-1)
+        truth_grasps = np.asarray(truth.grasp_rectangles, dtype=np.float64).reshape(-1, 5)
         truth_tasks = np.asarray(truth.grasp_tasks, dtype=np.int64).reshape(-1)
         for detection in np.nonzero(box_match >= 0)[0]:
             of_object = grasp_objects == box_match[detection]
             if not of_object.any():
                 continue
             self._judge_tasks(detections, int(detection), truth_grasps[of_object], truth_tasks[of_object])
+
+    def _protocol_hits(self, detections: Detections, truth: GroundTruth, categories: np.ndarray,
+                       truth_categories: np.ndarray,
+                       box_match: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One image's mAP hits, mAP-G hits and the categories of its objects that mAP-G counts."""
+        allowed = grasp_allowed(detections, truth)
+        if self.protocol == "lab":
+            box_match = match_detections_voc(detections.boxes, categories, detections.scores, truth.boxes,
+                                             truth_categories)
+            grasp_match = match_objects_in_order(detections.boxes, categories, detections.scores, truth.boxes,
+                                                 truth_categories, allowed)
+            counted = truth_categories[np.isin(truth_categories, categories)]
+        else:
+            grasp_match = match_detections(detections.boxes, categories, detections.scores, truth.boxes,
+                                           truth_categories, allowed=allowed)
+            counted = truth_categories
+        return box_match >= 0, grasp_match >= 0, counted
 
     def _judge_tasks(self, detections: Detections, detection: int, object_grasps: np.ndarray,
                      object_tasks: np.ndarray) -> None:
@@ -469,26 +697,30 @@ class TableTwoEvaluator:
         Returns
         -------
         dict
-            ``mAP``, ``mAP-G``, ``Acc-T top<k>`` for each k, ``images``,
-            ``rois`` (detections judged for Acc-T), ``AP`` and ``AP-G`` per
-            category name (only the categories with ground truth).
+            ``protocol``, ``mAP``, ``mAP-G``, ``Acc-T top<k>`` for each k,
+            ``images``, ``rois`` (detections judged for Acc-T), ``AP`` and
+            ``AP-G`` per category name (only the categories with ground
+            truth; under the lab's protocol an AP-G can be NaN, left out
+            of mAP-G).
         """
         scores = np.concatenate(self._scores) if self._scores else np.zeros(0)
         categories = np.concatenate(self._categories) if self._categories else np.zeros(0, dtype=np.int64)
         box_hits = np.concatenate(self._box_hits) if self._box_hits else np.zeros(0, dtype=bool)
         grasp_hits = np.concatenate(self._grasp_hits) if self._grasp_hits else np.zeros(0, dtype=bool)
+        box_ap = average_precision_11_point if self.protocol == "lab" else average_precision
         per_category, per_category_grasp = {}, {}
         for index, name in enumerate(CATEGORIES):
             count = int(self._ground_truth_counts[index])
             if count == 0:
                 continue
             chosen = categories == index
-            per_category[name] = average_precision(scores[chosen], box_hits[chosen], count)
-            per_category_grasp[name] = average_precision(scores[chosen], grasp_hits[chosen], count)
-        result: dict[str, Any] = {
-            "mAP": float(np.mean(list(per_category.values()))) if per_category else float("nan"),
-            "mAP-G": float(np.mean(list(per_category_grasp.values()))) if per_category_grasp else float("nan"),
-        }
+            per_category[name] = box_ap(scores[chosen], box_hits[chosen], count)
+            # No detection: 0, even where the lab's rule counted no ground truth.
+            per_category_grasp[name] = average_precision(
+                scores[chosen], grasp_hits[chosen], int(self._grasp_ground_truth_counts[index])
+            ) if chosen.any() else 0.0
+        result: dict[str, Any] = {"protocol": self.protocol, "mAP": _mean_ignoring_nan(per_category),
+                                  "mAP-G": _mean_ignoring_nan(per_category_grasp)}
         rois = 0
         for k in self.top_k:
             hits = self._task_hits.get(k, [])

@@ -37,13 +37,15 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torch import nn
 from torch.nn import functional
+from torchvision.models import resnet
 from torchvision.models.detection.anchor_utils import AnchorGenerator
-from torchvision.models.detection.backbone_utils import resnet_fpn_backbone
+from torchvision.models.detection.backbone_utils import BackboneWithFPN
 from torchvision.models.detection.faster_rcnn import FastRCNNPredictor, TwoMLPHead
 from torchvision.models.detection.image_list import ImageList
 from torchvision.models.detection.roi_heads import RoIHeads, fastrcnn_loss
 from torchvision.models.detection.rpn import RegionProposalNetwork, RPNHead
 from torchvision.ops import MultiScaleRoIAlign
+from torchvision.ops.feature_pyramid_network import LastLevelMaxPool
 from torchvision.ops.poolers import initLevelMapper
 
 from osgd.taxonomy import CATEGORIES, TASKS
@@ -67,11 +69,8 @@ CRF_TERMS: dict[str, tuple[bool, bool] | None] = {
 #: Supported ResNet depths (the paper uses resnet101).
 BACKBONES = ("resnet18", "resnet34", "resnet50", "resnet101")
 
-#: FPN output channels (torchvision).
-FPN_CHANNELS = 256
-
-#: Strides of the FPN maps "0"-"3" that RoIs are pooled from (ResNet C2-C5).
-FPN_STRIDES = (4, 8, 16, 32)
+#: Strides of the ResNet stages C2-C5, pixels of the network input.
+RESNET_STRIDES = (4, 8, 16, 32)
 
 #: Images are padded to a multiple of this (the coarsest FPN level, stride 32).
 SIZE_DIVISIBLE = 32
@@ -85,8 +84,23 @@ class ModelOptions:
     ----------
     norm : {"group", "batch"}
         Normalisation layers of the backbone and grasp head.
+    fpn_channels : int
+        Channels of every FPN map (torchvision: 256).
+    fpn_min_stride : {4, 8}
+        Finest FPN level: 4 pools RoIs from ResNet C2-C5 (torchvision's
+        default), 8 from C3-C5 only (about a third less work at 192 px; the
+        tools are at least 10 px wide there).
+    fpn_norm : bool
+        Normalise the FPN's lateral and output convolutions with ``norm``.
+        torchvision's FPN has none; from scratch its maps grow large and
+        uncentred and the clip then fires on every step (issue #15 review).
+    grasp_trunk_norm : bool
+        A last normalisation on the grasp ResBlocks' output. Their identity
+        path is never normalised, so after 3 blocks the features are all
+        positive and large (mean 1.9) without it.
     rpn_anchor_sizes : tuple of int
-        RPN anchor side per FPN level, pixels of the network input.
+        RPN anchor side per FPN level (one per level, the "pool" level
+        included), pixels of the network input.
     rpn_pre_nms_train, rpn_post_nms_train, rpn_pre_nms_test, rpn_post_nms_test : int
         Proposals kept per level before / per image after the RPN NMS.
     rpn_nms_threshold : float
@@ -119,6 +133,10 @@ class ModelOptions:
     """
 
     norm: str = "group"
+    fpn_channels: int = 256
+    fpn_min_stride: int = 4
+    fpn_norm: bool = True
+    grasp_trunk_norm: bool = True
     rpn_anchor_sizes: tuple[int, ...] = (16, 32, 64, 128, 256)
     rpn_pre_nms_train: int = 1000
     rpn_post_nms_train: int = 500
@@ -164,19 +182,45 @@ def norm_layer(kind: str) -> type[nn.Module] | callable:
     raise ValueError(f"unknown normalisation {kind!r}; expected 'group' or 'batch'")
 
 
-def build_backbone(name: str, norm: str = "group") -> nn.Module:
+def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stride: int = 4,
+                   fpn_norm: bool = True) -> BackboneWithFPN:
     """A ResNet + FPN backbone for 1-channel depth input, randomly initialised, fully trainable.
 
-    Returns torchvision's ``BackboneWithFPN`` (``out_channels`` = 256, feature
-    maps "0"-"3" at strides 4-32 and "pool" at 64).
+    Parameters
+    ----------
+    name : str
+        One of ``BACKBONES``.
+    norm : {"group", "batch"}
+        Normalisation of the ResNet (and of the FPN with ``fpn_norm``).
+    channels : int
+        FPN channels.
+    min_stride : {4, 8}
+        Stride of the finest FPN map.
+    fpn_norm : bool
+
+    Returns
+    -------
+    BackboneWithFPN
+        Maps "0", "1", ... at strides ``min_stride`` ... 32 and "pool" at 64.
     """
     if name not in BACKBONES:
         raise ValueError(f"unknown backbone {name!r}; expected one of {BACKBONES}")
-    backbone = resnet_fpn_backbone(backbone_name=name, weights=None, norm_layer=norm_layer(norm), trainable_layers=5)
-    first = backbone.body.conv1
-    backbone.body.conv1 = nn.Conv2d(1, first.out_channels, kernel_size=7, stride=2, padding=3, bias=False)
-    nn.init.kaiming_normal_(backbone.body.conv1.weight, mode="fan_out", nonlinearity="relu")
-    return backbone
+    if min_stride not in RESNET_STRIDES[:2]:
+        raise ValueError(f"fpn_min_stride {min_stride}: expected 4 or 8")
+    body = resnet.__dict__[name](weights=None, norm_layer=norm_layer(norm))
+    body.conv1 = nn.Conv2d(1, body.conv1.out_channels, kernel_size=7, stride=2, padding=3, bias=False)
+    nn.init.kaiming_normal_(body.conv1.weight, mode="fan_out", nonlinearity="relu")
+    stages = [stage for stage, stride in enumerate(RESNET_STRIDES, start=1) if stride >= min_stride]
+    stage_channels = body.inplanes // 8  # C2's width: 64 (basic blocks) or 256 (bottlenecks)
+    return BackboneWithFPN(
+        body, {f"layer{stage}": str(index) for index, stage in enumerate(stages)},
+        [stage_channels * 2 ** (stage - 1) for stage in stages], channels,
+        extra_blocks=LastLevelMaxPool(), norm_layer=norm_layer(norm) if fpn_norm else None)
+
+
+def fpn_strides(options: ModelOptions) -> tuple[int, ...]:
+    """Strides of the FPN maps that RoIs are pooled from ("0", "1", ...; "pool" excluded)."""
+    return tuple(stride for stride in RESNET_STRIDES if stride >= options.fpn_min_stride)
 
 
 class ResBlock(nn.Module):
@@ -204,12 +248,13 @@ class GraspHead(nn.Module):
     """
 
     def __init__(self, in_channels: int, channels: int, norm: str, task_count: int = len(TASKS),
-                 blocks: int = 3) -> None:
+                 blocks: int = 3, output_norm: bool = True) -> None:
         super().__init__()
         self.anchors = len(ANCHOR_ANGLES)
         self.task_count = task_count
         self.entry = nn.Identity() if in_channels == channels else nn.Conv2d(in_channels, channels, 1)
-        self.blocks = nn.Sequential(*[ResBlock(channels, norm) for _ in range(blocks)])
+        trunk = [ResBlock(channels, norm) for _ in range(blocks)]
+        self.blocks = nn.Sequential(*trunk, *([norm_layer(norm)(channels)] if output_norm else []))
         self.regression = nn.Conv2d(channels, self.anchors * 5, 3, padding=1)
         self.stability = nn.Conv2d(channels, self.anchors * 2, 3, padding=1)
         self.task = nn.Conv2d(channels, self.anchors * task_count, 3, padding=1)
@@ -300,31 +345,38 @@ class TogDetector(nn.Module):
                  options: ModelOptions | None = None) -> None:
         super().__init__()
         self.options = options = options or ModelOptions()
-        self.backbone = build_backbone(backbone, options.norm)
-        levels = len(options.rpn_anchor_sizes)
+        self.backbone = build_backbone(backbone, options.norm, options.fpn_channels, options.fpn_min_stride,
+                                       options.fpn_norm)
+        strides = fpn_strides(options)
+        levels = len(strides) + 1  # the "pool" level of the RPN
+        if len(options.rpn_anchor_sizes) != levels:
+            raise ValueError(f"rpn_anchor_sizes {options.rpn_anchor_sizes}: expected {levels} sizes, one per FPN "
+                             f"level (strides {(*strides, 2 * strides[-1])})")
         anchor_generator = AnchorGenerator(tuple((size,) for size in options.rpn_anchor_sizes),
                                            ((0.5, 1.0, 2.0),) * levels)
         self.rpn = RegionProposalNetwork(
-            anchor_generator, RPNHead(FPN_CHANNELS, 3),
+            anchor_generator, RPNHead(options.fpn_channels, 3),
             fg_iou_thresh=0.7, bg_iou_thresh=0.3, batch_size_per_image=256, positive_fraction=0.5,
             pre_nms_top_n={"training": options.rpn_pre_nms_train, "testing": options.rpn_pre_nms_test},
             post_nms_top_n={"training": options.rpn_post_nms_train, "testing": options.rpn_post_nms_test},
             nms_thresh=options.rpn_nms_threshold,
         )
-        roi_pool = MultiScaleRoIAlign(["0", "1", "2", "3"], output_size=GRID, sampling_ratio=2)
+        roi_pool = MultiScaleRoIAlign([str(level) for level in range(len(strides))], output_size=GRID,
+                                      sampling_ratio=2)
         # torchvision infers the level scales from the first batch's image sizes and caches them; with
         # small images padded to a multiple of 32 that guess is off by a level, and it would depend on
         # which batch came first: the FPN strides are known, so fix the scales.
-        roi_pool.scales = [1.0 / stride for stride in FPN_STRIDES]
-        roi_pool.map_levels = initLevelMapper(int(math.log2(FPN_STRIDES[0])), int(math.log2(FPN_STRIDES[-1])))
+        roi_pool.scales = [1.0 / stride for stride in strides]
+        roi_pool.map_levels = initLevelMapper(int(math.log2(strides[0])), int(math.log2(strides[-1])))
         self.roi_heads = RoIHeads(
-            roi_pool, TwoMLPHead(FPN_CHANNELS * GRID * GRID, options.box_head_size),
+            roi_pool, TwoMLPHead(options.fpn_channels * GRID * GRID, options.box_head_size),
             FastRCNNPredictor(options.box_head_size, len(CATEGORIES) + 1),
             fg_iou_thresh=0.5, bg_iou_thresh=0.5, batch_size_per_image=options.box_batch_per_image,
             positive_fraction=0.25, bbox_reg_weights=None, score_thresh=options.box_score_threshold,
             nms_thresh=options.box_nms_threshold, detections_per_img=options.detections_per_image,
         )
-        self.grasp_head = GraspHead(FPN_CHANNELS, options.grasp_channels, options.norm)
+        self.grasp_head = GraspHead(options.fpn_channels, options.grasp_channels, options.norm,
+                                    output_norm=options.grasp_trunk_norm)
         self.crf = None if crf_terms is None else MeanFieldCrf(
             len(TASKS), use_omega=crf_terms[0], use_mu=crf_terms[1],
             iterations=options.crf_iterations, bandwidth=options.crf_bandwidth,

@@ -70,6 +70,28 @@ class Scale:
     batch_size: int
     warmup_steps: int = 100
     lr: float = 0.001
+    optimizer: str = "sgd"
+    lr_schedule: str = "step"
+    weight_decay: float = 1e-4
+    clip_grad_norm: float = 10.0
+    scale_jitter: float = 0.1
+    val_samples: int = 0
+    time_budget_minutes: float | None = None
+    model_options: tuple[tuple[str, Any], ...] = ()
+
+    def train_config(self, data_dir: Path, run_dir: Path, model: str, *, pipeline: str | None, device: str,
+                     seed: int, resume: bool) -> Any:
+        """The ``togcrf.train.TrainConfig`` of one model at this scale."""
+        from togcrf.train import TrainConfig  # noqa: PLC0415
+
+        return TrainConfig(data=str(data_dir), out=str(run_dir), pipeline=pipeline, model=model,
+                           backbone=self.backbone, epochs=self.epochs, batch_size=self.batch_size,
+                           image_size=self.image_size, max_samples=self.max_samples, device=device,
+                           warmup_steps=self.warmup_steps, lr=self.lr, seed=seed, resume=resume,
+                           optimizer=self.optimizer, lr_schedule=self.lr_schedule, weight_decay=self.weight_decay,
+                           clip_grad_norm=self.clip_grad_norm, scale_jitter=self.scale_jitter,
+                           val_samples=self.val_samples, time_budget_minutes=self.time_budget_minutes,
+                           model_options=dict(self.model_options))
 
 
 #: The paper's setting (Section V: 10 epochs; Section IV-B: ResNet-101).
@@ -80,14 +102,31 @@ PAPER_SCALE = Scale("resnet101", 10, None, None, None, 2)
 #: tests/test_togcrf_train.py converge with it).
 SMALL_SCALE = Scale("resnet18", 8, 192, 64, 32, 2, warmup_steps=16, lr=0.01)
 
+#: The model options of the CPU recipe (issue #15; each measured in docs/togcrf-evaluation.md): a
+#: lighter detector (FPN from stride 8 with 128 channels, 64 RoIs per image for the RCNN loss, a
+#: 256-wide box head, 128-channel grasp blocks, fewer training proposals) and 12 px grasp anchors,
+#: the size of the openings and finger widths at 192 px (ROI-GD's 12 px, REFERENCE section 3).
+CPU_MODEL_OPTIONS = (
+    ("fpn_min_stride", 8), ("rpn_anchor_sizes", (16, 32, 64, 128)), ("fpn_channels", 128),
+    ("box_batch_per_image", 64), ("box_head_size", 256), ("grasp_channels", 128),
+    ("rpn_pre_nms_train", 500), ("rpn_post_nms_train", 250), ("grasp_anchor_size", 12.0),
+)
+
+#: The CPU recipe: one hour of training per model on 2 cores, ResNet-18 from scratch at 192 px,
+#: AdamW with a cosine schedule, on every training sample of the data dir (the recipe's data is
+#: pipelines/recipe.toml), a 64-sample validation slice for the learning curves.
+CPU_SCALE = Scale("resnet18", 50, 192, None, None, 4, warmup_steps=200, lr=0.001, optimizer="adamw",
+                  lr_schedule="cosine", weight_decay=1e-4, clip_grad_norm=10.0, scale_jitter=0.15,
+                  val_samples=64, time_budget_minutes=60.0, model_options=CPU_MODEL_OPTIONS)
+
 
 def resolve_scale(name: str) -> Scale:
     """The scale named ``paper``, ``small`` or ``auto`` (paper with CUDA, else small)."""
     if name == "auto":
         name = "paper" if torch.cuda.is_available() else "small"
-    scales = {"paper": PAPER_SCALE, "small": SMALL_SCALE}
+    scales = {"paper": PAPER_SCALE, "small": SMALL_SCALE, "cpu": CPU_SCALE}
     if name not in scales:
-        raise ValueError(f"--scale {name!r}: expected auto, paper or small")
+        raise ValueError(f"--scale {name!r}: expected auto, paper, cpu or small")
     return scales[name]
 
 
@@ -118,7 +157,7 @@ def reproduce(
         ``rows``: list of (name, Table II row); ``table``: the text.
     """
     from togcrf.figures import crf_matrices, draw_crf_figures  # noqa: PLC0415
-    from togcrf.train import TrainConfig, load_checkpoint, resolve_device, train  # noqa: PLC0415
+    from togcrf.train import load_checkpoint, resolve_device, train  # noqa: PLC0415
 
     eval_device = str(resolve_device(device))
     rows = []
@@ -128,10 +167,8 @@ def reproduce(
         done = _trained_epochs(checkpoint)
         if done < scale.epochs:
             log.info("training %s (%d of %d epochs done)", model, done, scale.epochs)
-            train(TrainConfig(data=str(data_dir), out=str(run_dir), pipeline=pipeline, model=model,
-                              backbone=scale.backbone, epochs=scale.epochs, batch_size=scale.batch_size,
-                              image_size=scale.image_size, max_samples=scale.max_samples, device=device,
-                              warmup_steps=scale.warmup_steps, lr=scale.lr, seed=seed, resume=done > 0))
+            train(scale.train_config(data_dir, run_dir, model, pipeline=pipeline, device=device, seed=seed,
+                                     resume=done > 0))
         document = evaluate_checkpoint(checkpoint, data_dir, pipeline=pipeline, split="test", device=eval_device,
                                        max_samples=scale.eval_max_samples, speed_images=speed_images)
         write_json(run_dir / EVAL_FILE, document)

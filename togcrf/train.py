@@ -6,8 +6,11 @@ bar. A run dir holds:
 
 - ``config.json``: every training option, the model options and the data identity;
 - ``metrics.csv``: one row per epoch: mean of every loss term, the total,
-  the learning rate, seconds, and ``train_acc_t_top1`` measured on the fly
-  (``togcrf.losses.top1_task_hits``);
+  the learning rate, seconds, images per second, ``train_acc_t_top1``
+  measured on the fly (``togcrf.losses.top1_task_hits``) and, with
+  ``val_samples``, the held-out ``val_mAP``, ``val_mAP-G`` and
+  ``val_Acc-T top1`` of the epoch's model (``togcrf curves`` draws them);
+- ``train.log``: the progress lines (step, losses, images/s, time left);
 - ``checkpoint.pt``: the latest epoch (contract: "model", "optimizer",
   "scheduler", "epoch", "config", "data");
 - ``tensorboard/``: the same scalars, when the ``tensorboard`` package is installed.
@@ -17,7 +20,10 @@ Defaults follow the paper (Section V): 10 epochs, SGD, lr 0.001, momentum
 and gradient-norm clipping, both because the detector is trained from
 scratch (no pretrained weights can be downloaded) and the first steps of the
 randomly initialised grasp head have large gradients; weight decay 1e-4 as
-torchvision's detection references. Seeding: ``torch.manual_seed(seed +
+torchvision's detection references; AdamW and a cosine schedule as options
+(the CPU recipe, ``togcrf.reproduce.CPU_SCALE``). The validation slice is
+the last ``val_samples`` samples of the training split, held out of
+training. Seeding: ``torch.manual_seed(seed +
 epoch)`` at the start of every epoch (RoI sampling), augmentation drawn from
 ``(seed, epoch, item)`` and a seeded shard-grouped data order, so a resumed
 run continues as the uninterrupted one would.
@@ -28,6 +34,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
+import math
 import os
 import time
 from collections.abc import Callable
@@ -43,6 +50,15 @@ from togcrf.data import SamplesDataset, ShardGroupedSampler, collate
 from togcrf.model import BACKBONES, MODEL_NAMES, build_model
 
 logger = logging.getLogger(__name__)
+
+#: Optimisers of ``--optimizer``.
+OPTIMIZERS = ("sgd", "adamw")
+
+#: Learning-rate schedules of ``--lr-schedule``.
+LR_SCHEDULES = ("step", "cosine")
+
+#: Held-out metrics per epoch in metrics.csv (``val_`` + the Table II column).
+VALIDATION_COLUMNS = ("val_mAP", "val_mAP-G", "val_Acc-T top1")
 
 #: Loss terms in metrics.csv, in order (the model's loss keys).
 LOSS_TERMS = ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
@@ -95,6 +111,24 @@ class TrainConfig:
         ``togcrf.model.ModelOptions`` overrides.
     resume : bool
         Continue ``out/checkpoint.pt`` (without it an existing checkpoint is an error).
+    optimizer : {"sgd", "adamw"}
+        SGD with ``momentum`` (paper), or AdamW (betas 0.9, 0.999).
+    lr_schedule : {"step", "cosine"}
+        "step": 0.1 from each of ``lr_decay_epochs``; "cosine": from ``lr``
+        to 0 over all epochs' steps, after the warm-up.
+    scale_jitter : float
+        Augmentation scales are drawn from ``[1 - scale_jitter, 1]``.
+    val_samples : int
+        Samples at the end of the training split held out for per-epoch
+        validation metrics (0: none).
+    time_budget_minutes : float or None
+        Stop after the step that exceeds this much training time (the steps'
+        time, validation excluded; kept across ``--resume``); the checkpoint
+        then holds the partial epoch and the run is complete. With the cosine
+        schedule the learning rate then follows the spent fraction of the
+        budget instead of the steps, so that it reaches 0 when the time is
+        up whatever the machine's speed (``epochs`` is then an upper bound;
+        such a run is not bit-reproducible).
     """
 
     data: str
@@ -120,6 +154,11 @@ class TrainConfig:
     split: str = "train"
     model_options: dict[str, Any] = field(default_factory=dict)
     resume: bool = False
+    optimizer: str = "sgd"
+    lr_schedule: str = "step"
+    scale_jitter: float = 0.1
+    val_samples: int = 0
+    time_budget_minutes: float | None = None
 
     def validate(self) -> None:
         """Raise ValueError naming the bad option."""
@@ -131,6 +170,14 @@ class TrainConfig:
             raise ValueError(f"--device {self.device!r}: expected auto, cpu or cuda")
         if self.epochs < 1 or self.batch_size < 1 or self.lr <= 0:
             raise ValueError(f"epochs ({self.epochs}), batch size ({self.batch_size}) and lr ({self.lr}) must be > 0")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"--optimizer {self.optimizer!r}: expected one of {OPTIMIZERS}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"--lr-schedule {self.lr_schedule!r}: expected one of {LR_SCHEDULES}")
+        if not 0 <= self.scale_jitter < 1:
+            raise ValueError(f"--scale-jitter {self.scale_jitter}: expected a value in [0, 1)")
+        if self.val_samples < 0:
+            raise ValueError(f"--val-samples {self.val_samples}: expected 0 or more")
 
 
 @dataclass(frozen=True)
@@ -143,6 +190,7 @@ class Progress:
     steps: int
     losses: dict[str, float]
     metrics: dict[str, float] | None = None
+    images_per_second: float | None = None
 
 
 def resolve_device(name: str) -> torch.device:
@@ -155,20 +203,37 @@ def resolve_device(name: str) -> torch.device:
 
 
 class WarmupSchedule:
-    """Learning-rate factor per optimiser step: linear warm-up, then 0.1 per passed decay epoch.
+    """Learning-rate factor per optimiser step: linear warm-up, then step decay or a cosine to 0.
 
     A callable object (not a closure) so that ``LambdaLR.state_dict`` saves it.
     """
 
-    def __init__(self, warmup_steps: int, steps_per_epoch: int, decay_epochs: list[int]) -> None:
+    def __init__(self, warmup_steps: int, steps_per_epoch: int, decay_epochs: list[int],
+                 cosine_steps: int | None = None) -> None:
         self.warmup_steps = warmup_steps
         self.steps_per_epoch = max(1, steps_per_epoch)
         self.decay_epochs = sorted(decay_epochs)
+        self.cosine_steps = cosine_steps
 
     def __call__(self, step: int) -> float:
         warmup = 1.0 if step >= self.warmup_steps else 0.01 + 0.99 * step / self.warmup_steps
+        if self.cosine_steps is not None:
+            span = max(1, self.cosine_steps - self.warmup_steps)
+            progress = min(1.0, max(0, step - self.warmup_steps) / span)
+            return warmup * 0.5 * (1.0 + math.cos(math.pi * progress))
         epoch = step // self.steps_per_epoch
         return warmup * 0.1 ** sum(epoch >= decay for decay in self.decay_epochs)
+
+
+def build_optimizer(model: torch.nn.Module, config: TrainConfig) -> torch.optim.Optimizer:
+    """The optimiser of ``config.optimizer``; no weight decay on normalisation weights and biases with AdamW."""
+    parameters = [parameter for parameter in model.parameters() if parameter.requires_grad]
+    if config.optimizer == "sgd":
+        return torch.optim.SGD(parameters, lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay)
+    decayed = [parameter for parameter in parameters if parameter.dim() > 1]
+    plain = [parameter for parameter in parameters if parameter.dim() <= 1]
+    return torch.optim.AdamW([{"params": decayed, "weight_decay": config.weight_decay},
+                              {"params": plain, "weight_decay": 0.0}], lr=config.lr)
 
 
 def _to_device(images: list[torch.Tensor], targets: list[dict[str, torch.Tensor]], device: torch.device):
@@ -190,7 +255,8 @@ def _read_metrics(path: Path) -> list[dict[str, str]]:
 
 
 def _write_metrics(path: Path, rows: list[dict[str, Any]]) -> None:
-    columns = ["epoch", "steps", "samples", "seconds", "lr", "loss", *LOSS_TERMS, "train_acc_t_top1"]
+    columns = ["epoch", "steps", "samples", "seconds", "images_per_second", "lr", "loss", *LOSS_TERMS,
+               "train_acc_t_top1", *VALIDATION_COLUMNS]
     temporary = path.with_suffix(".csv.tmp")
     with temporary.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=columns, extrasaction="ignore")
@@ -208,7 +274,160 @@ def _tensorboard_writer(run_dir: Path):
 
 
 #: Config entries that must agree between a checkpoint and a run resuming it.
-_RESUME_MUST_MATCH = ("model", "backbone", "image_size", "model_options", "batch_size")
+_RESUME_MUST_MATCH = ("model", "backbone", "image_size", "model_options", "batch_size", "optimizer",
+                      "lr_schedule", "val_samples")
+
+
+@dataclass
+class _Run:
+    """What one training run carries from epoch to epoch."""
+
+    config: TrainConfig
+    device: torch.device
+    model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LambdaLR
+    loader: DataLoader
+    dataset: SamplesDataset
+    sampler: ShardGroupedSampler
+    validation: list[int]
+    trained_seconds: float = 0.0
+    global_step: int = 0
+    out_of_time: bool = False
+
+    def budget_spent(self) -> float:
+        """Fraction of the time budget spent (0 without a budget)."""
+        budget = self.config.time_budget_minutes
+        return 0.0 if budget is None else self.trained_seconds / (60.0 * budget)
+
+
+def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any]]:
+    """Data, model, optimiser and schedule of a run; the stored config and the data identity."""
+    device = resolve_device(config.device)
+    dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
+                             image_size=config.image_size, augment=config.augment, seed=config.seed,
+                             max_samples=config.max_samples, scale_jitter=config.scale_jitter)
+    validation_samples = [dataset.read_sample(item) for item in range(len(dataset) - config.val_samples,
+                                                                        len(dataset))] if config.val_samples else []
+    if config.val_samples:
+        if config.val_samples >= len(dataset):
+            raise ValueError(f"--val-samples {config.val_samples}: the training split has only {len(dataset)}")
+        dataset.index = dataset.index[: len(dataset) - config.val_samples]
+    sampler = ShardGroupedSampler(dataset, seed=config.seed)
+    loader = DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, collate_fn=collate,
+                        num_workers=config.workers, pin_memory=device.type == "cuda")
+    data_identity = {"data_dir": str(Path(config.data).resolve()), "pipeline": config.pipeline,
+                     "split": config.split, "shards": dataset.shard_keys(), "samples": len(dataset),
+                     "validation_samples": [sample.sample_id for sample in validation_samples]}
+    torch.manual_seed(config.seed)
+    model = build_model(config.model, config.backbone, **config.model_options).to(device)
+    stored_config = {**asdict(config), "model_options": _model_options(model, config)}
+    optimizer = build_optimizer(model, config)
+    cosine_steps = config.epochs * len(loader) if config.lr_schedule == "cosine" else None
+    scheduler = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, WarmupSchedule(config.warmup_steps, len(loader), config.lr_decay_epochs, cosine_steps))
+    run = _Run(config, device, model, optimizer, scheduler, loader, dataset, sampler, [])
+    run.validation = validation_samples
+    return run, stored_config, data_identity
+
+
+def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
+    """Load a checkpoint into the run; the first epoch still to train."""
+    checkpoint = torch.load(checkpoint_path, map_location=run.device, weights_only=False)
+    for key in _RESUME_MUST_MATCH:
+        if checkpoint["config"].get(key) != stored_config.get(key):
+            raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {checkpoint['config'].get(key)!r}, "
+                             f"now {stored_config.get(key)!r}")
+    run.model.load_state_dict(checkpoint["model"])
+    run.optimizer.load_state_dict(checkpoint["optimizer"])
+    run.scheduler.load_state_dict(checkpoint["scheduler"])
+    logger.info("resuming %s after epoch %d", checkpoint_path, int(checkpoint["epoch"]))
+    run.trained_seconds = float(checkpoint.get("trained_seconds", 0.0))
+    if checkpoint.get("stopped_by_budget"):
+        return run.config.epochs
+    return int(checkpoint["epoch"]) + 1
+
+
+def train_one_epoch(run: _Run, epoch: int, progress: Callable[[Progress], None] | None = None,
+                    writer: Any = None) -> dict[str, Any]:
+    """One pass over the training data; the epoch's metrics row (losses averaged over its steps)."""
+    config, model, optimizer = run.config, run.model, run.optimizer
+    use_amp = config.amp and run.device.type == "cuda"
+    amp_dtype = torch.bfloat16 if use_amp and torch.cuda.is_bf16_supported() else torch.float16
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
+    model.train()
+    run.dataset.set_epoch(epoch)
+    run.sampler.set_epoch(epoch)
+    torch.manual_seed(config.seed + epoch)
+    sums = dict.fromkeys(LOSS_TERMS, 0.0)
+    hits = rois = samples = steps = 0
+    started = time.perf_counter()
+    for cpu_images, cpu_targets, sample_ids in run.loader:
+        step_started = time.perf_counter()
+        images, targets = _to_device(cpu_images, cpu_targets, run.device)
+        with torch.autocast(device_type=run.device.type, dtype=amp_dtype, enabled=use_amp):
+            losses = model(images, targets)
+        total = sum(losses.values())
+        if not torch.isfinite(total):
+            terms = {key: float(value) for key, value in losses.items()}
+            raise FloatingPointError(f"non-finite loss at epoch {epoch} step {steps} (samples {sample_ids}): "
+                                     f"{terms}; lower --lr or check the data")
+        optimizer.zero_grad(set_to_none=True)
+        scaler.scale(total).backward()
+        if config.clip_grad_norm > 0:
+            scaler.unscale_(optimizer)
+            torch.nn.utils.clip_grad_norm_(model.parameters(), config.clip_grad_norm)
+        scaler.step(optimizer)
+        scaler.update()
+        run.scheduler.step()
+        run.global_step += 1
+        run.trained_seconds += time.perf_counter() - step_started
+        if config.time_budget_minutes is not None and config.lr_schedule == "cosine":
+            _follow_the_budget(run)
+        steps += 1
+        samples += len(images)
+        step_losses = {key: float(value.detach()) for key, value in losses.items()}
+        for key in LOSS_TERMS:
+            sums[key] += step_losses.get(key, 0.0)
+        stats = getattr(model, "last_training_stats", {})
+        hits += stats.get("acc_t_hits", 0)
+        rois += stats.get("acc_t_rois", 0)
+        if writer is not None:
+            for key, value in step_losses.items():
+                writer.add_scalar(f"step/{key}", value, run.global_step)
+        if progress is not None:
+            progress(Progress(epoch, config.epochs, steps, len(run.loader), step_losses,
+                              images_per_second=samples / max(time.perf_counter() - started, 1e-9)))
+        if run.budget_spent() >= 1.0:
+            run.out_of_time = True
+            break
+    seconds = time.perf_counter() - started
+    means = {key: value / max(steps, 1) for key, value in sums.items()}
+    return {"epoch": epoch, "steps": steps, "samples": samples, "seconds": round(seconds, 3),
+            "images_per_second": round(samples / max(seconds, 1e-9), 3), "lr": optimizer.param_groups[0]["lr"],
+            "loss": sum(means.values()), **means, "train_acc_t_top1": hits / rois if rois else float("nan")}
+
+
+def _follow_the_budget(run: _Run) -> None:
+    """Set the learning rate from the spent fraction of the time budget: warm-up, then a cosine to 0."""
+    schedule = run.scheduler.lr_lambdas[0]
+    warmup = 1.0 if run.global_step >= schedule.warmup_steps else 0.01 + 0.99 * run.global_step / max(
+        1, schedule.warmup_steps)
+    factor = warmup * 0.5 * (1.0 + math.cos(math.pi * min(1.0, run.budget_spent())))
+    for group, base in zip(run.optimizer.param_groups, run.scheduler.base_lrs, strict=True):
+        group["lr"] = base * factor
+
+
+def validate(run: _Run) -> dict[str, float]:
+    """Held-out mAP, mAP-G and Acc-T top-1 of the run's model on its validation slice (empty without one)."""
+    if not run.validation:
+        return {}
+    from togcrf.evaluate import evaluate_model  # noqa: PLC0415
+
+    result = evaluate_model(run.model, run.validation, run.config.image_size, device=str(run.device),
+                            speed_images=0)
+    metrics = result["metrics"]
+    return {f"val_{name}": float(metrics.get(name, float("nan"))) for name in ("mAP", "mAP-G", "Acc-T top1")}
 
 
 def train(config: TrainConfig, progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
@@ -235,108 +454,42 @@ def train(config: TrainConfig, progress: Callable[[Progress], None] | None = Non
         A non-finite loss (names the step and the terms).
     """
     config.validate()
-    device = resolve_device(config.device)
     run_dir = Path(config.out)
     run_dir.mkdir(parents=True, exist_ok=True)
     checkpoint_path = run_dir / "checkpoint.pt"
-
-    dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
-                             image_size=config.image_size, augment=config.augment, seed=config.seed,
-                             max_samples=config.max_samples)
-    sampler = ShardGroupedSampler(dataset, seed=config.seed)
-    loader = DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, collate_fn=collate,
-                        num_workers=config.workers, pin_memory=device.type == "cuda")
-    data_identity = {"data_dir": str(Path(config.data).resolve()), "pipeline": config.pipeline,
-                     "split": config.split, "shards": dataset.shard_keys(), "samples": len(dataset)}
-
-    torch.manual_seed(config.seed)
-    model = build_model(config.model, config.backbone, **config.model_options).to(device)
-    stored_config = {**asdict(config), "model_options": _model_options(model, config)}
-    optimizer = torch.optim.SGD([p for p in model.parameters() if p.requires_grad], lr=config.lr,
-                                momentum=config.momentum, weight_decay=config.weight_decay)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, WarmupSchedule(config.warmup_steps, len(loader), config.lr_decay_epochs))
+    run, stored_config, data_identity = _build_run(config)
     start_epoch = 0
     if checkpoint_path.exists():
         if not config.resume:
             raise ValueError(f"{checkpoint_path} exists: pass --resume to continue it, or choose another --out")
-        checkpoint = torch.load(checkpoint_path, map_location=device, weights_only=False)
-        for key in _RESUME_MUST_MATCH:
-            if checkpoint["config"].get(key) != stored_config.get(key):
-                raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {checkpoint['config'].get(key)!r}, "
-                                 f"now {stored_config.get(key)!r}")
-        model.load_state_dict(checkpoint["model"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        scheduler.load_state_dict(checkpoint["scheduler"])
-        start_epoch = int(checkpoint["epoch"]) + 1
-        logger.info("resuming %s after epoch %d", checkpoint_path, start_epoch - 1)
+        start_epoch = _resume(run, checkpoint_path, stored_config)
     (run_dir / "config.json").write_text(json.dumps({**stored_config, "data_identity": data_identity}, indent=2))
-
-    use_amp = config.amp and device.type == "cuda"
-    amp_dtype = torch.bfloat16 if use_amp and torch.cuda.is_bf16_supported() else torch.float16
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
     metrics_path = run_dir / "metrics.csv"
     rows = [row for row in _read_metrics(metrics_path) if int(row["epoch"]) < start_epoch]
     writer = _tensorboard_writer(run_dir)
     last_row: dict[str, Any] = {}
-    global_step = start_epoch * len(loader)
+    run.global_step = start_epoch * len(run.loader)
     for epoch in range(start_epoch, config.epochs):
-        model.train()
-        dataset.set_epoch(epoch)
-        sampler.set_epoch(epoch)
-        torch.manual_seed(config.seed + epoch)
-        sums = dict.fromkeys(LOSS_TERMS, 0.0)
-        hits = rois = samples = steps = 0
-        started = time.perf_counter()
-        for cpu_images, cpu_targets, sample_ids in loader:
-            images, targets = _to_device(cpu_images, cpu_targets, device)
-            with torch.autocast(device_type=device.type, dtype=amp_dtype, enabled=use_amp):
-                losses = model(images, targets)
-            total = sum(losses.values())
-            if not torch.isfinite(total):
-                terms = {key: float(value) for key, value in losses.items()}
-                raise FloatingPointError(f"non-finite loss at epoch {epoch} step {steps} (samples {sample_ids}): "
-                                         f"{terms}; lower --lr or check the data")
-            optimizer.zero_grad(set_to_none=True)
-            scaler.scale(total).backward()
-            if config.clip_grad_norm > 0:
-                scaler.unscale_(optimizer)
-                torch.nn.utils.clip_grad_norm_(model.parameters(), config.clip_grad_norm)
-            scaler.step(optimizer)
-            scaler.update()
-            scheduler.step()
-            global_step += 1
-            steps += 1
-            samples += len(images)
-            step_losses = {key: float(value.detach()) for key, value in losses.items()}
-            for key in LOSS_TERMS:
-                sums[key] += step_losses.get(key, 0.0)
-            stats = getattr(model, "last_training_stats", {})
-            hits += stats.get("acc_t_hits", 0)
-            rois += stats.get("acc_t_rois", 0)
-            if writer is not None:
-                for key, value in step_losses.items():
-                    writer.add_scalar(f"step/{key}", value, global_step)
-            if progress is not None:
-                progress(Progress(epoch, config.epochs, steps, len(loader), step_losses))
-        means = {key: value / max(steps, 1) for key, value in sums.items()}
-        last_row = {"epoch": epoch, "steps": steps, "samples": samples,
-                    "seconds": round(time.perf_counter() - started, 3), "lr": optimizer.param_groups[0]["lr"],
-                    "loss": sum(means.values()), **means,
-                    "train_acc_t_top1": hits / rois if rois else float("nan")}
+        last_row = train_one_epoch(run, epoch, progress, writer)
+        last_row.update(validate(run))
         rows.append(last_row)
         _write_metrics(metrics_path, rows)
-        _atomic_save({"model": model.state_dict(), "optimizer": optimizer.state_dict(),
-                      "scheduler": scheduler.state_dict(), "epoch": epoch, "config": stored_config,
-                      "data": data_identity}, checkpoint_path)
+        _atomic_save({"model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
+                      "scheduler": run.scheduler.state_dict(), "epoch": epoch, "config": stored_config,
+                      "data": data_identity, "stopped_by_budget": run.out_of_time,
+                      "trained_seconds": run.trained_seconds}, checkpoint_path)
         if writer is not None:
-            for key in ("loss", *LOSS_TERMS, "train_acc_t_top1"):
-                writer.add_scalar(f"epoch/{key}", last_row[key], epoch)
+            for key in ("loss", *LOSS_TERMS, "train_acc_t_top1", *VALIDATION_COLUMNS):
+                if key in last_row:
+                    writer.add_scalar(f"epoch/{key}", last_row[key], epoch)
             writer.flush()
         logger.info("epoch %d: loss %.4f, train Acc-T top-1 %.3f", epoch, last_row["loss"],
                     last_row["train_acc_t_top1"])
         if progress is not None:
-            progress(Progress(epoch, config.epochs, steps, len(loader), step_losses, metrics=last_row))
+            progress(Progress(epoch, config.epochs, last_row["steps"], len(run.loader), {}, metrics=last_row))
+        if run.out_of_time:
+            logger.info("time budget of %s minutes spent after epoch %d", config.time_budget_minutes, epoch)
+            break
     if writer is not None:
         writer.close()
     return last_row
@@ -388,6 +541,105 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[torch.nn.Mod
     return model, config
 
 
+def _duration(seconds: float) -> str:
+    """``1h02m``, ``4m05s`` or ``12s``."""
+    seconds = max(0, int(seconds))
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+    if seconds >= 60:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds}s"
+
+
+class ProgressReport:
+    """The command's progress: a bar on a terminal, and lines at a steady pace in ``train.log`` and off a terminal.
+
+    A line: epoch, step, total loss and its largest terms, images per second,
+    the time left in the epoch and in the run.
+    """
+
+    #: Seconds between progress lines.
+    LINE_INTERVAL = 30.0
+
+    def __init__(self, run_dir: Path, epochs: int) -> None:
+        from tqdm import tqdm  # noqa: PLC0415 - CLI side only
+
+        self._tqdm = tqdm
+        self.bar = None
+        self.epochs = epochs
+        self.started = time.perf_counter()
+        self.last_line = 0.0
+        self.steps_done = 0
+        run_dir.mkdir(parents=True, exist_ok=True)
+        self.log = (run_dir / "train.log").open("a", buffering=1)
+        self.terminal = os.isatty(1)
+
+    def line(self, text: str) -> None:
+        """Write a line to the log, and to stdout where no bar shows it."""
+        stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+        self.log.write(f"{stamp} {text}\n")
+        if self.bar is not None:
+            self.bar.write(text)
+        else:
+            typer.echo(text)
+
+    def __call__(self, event: Progress) -> None:
+        if event.metrics is not None:
+            self._epoch_done(event)
+            return
+        self.steps_done += 1
+        elapsed = time.perf_counter() - self.started
+        per_step = elapsed / self.steps_done
+        epoch_left = (event.steps - event.step) * per_step
+        run_left = epoch_left + (self.epochs - event.epoch - 1) * event.steps * per_step
+        loss = sum(event.losses.values())
+        if self.terminal:
+            if self.bar is None:
+                self.bar = self._tqdm(total=event.steps, desc=f"epoch {event.epoch + 1}/{event.epochs}", unit="step")
+            self.bar.update(1)
+            self.bar.set_postfix(loss=f"{loss:.3f}", img_s=f"{event.images_per_second or 0:.1f}",
+                                 run_left=_duration(run_left))
+        now = time.perf_counter()
+        if now - self.last_line >= self.LINE_INTERVAL or event.step == event.steps:
+            self.last_line = now
+            terms = ", ".join(f"{key} {value:.3f}" for key, value in event.losses.items())
+            text = (f"epoch {event.epoch + 1}/{event.epochs} step {event.step}/{event.steps}: loss {loss:.3f} "
+                    f"({terms}); {event.images_per_second or 0:.2f} images/s; epoch left "
+                    f"{_duration(epoch_left)}, run left {_duration(run_left)}")
+            if self.terminal:
+                self.log.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {text}\n")
+            else:
+                self.line(text)
+
+    def _epoch_done(self, event: Progress) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        metrics = event.metrics
+        validation = "".join(f", {key} {metrics[key]:.3f}" for key in VALIDATION_COLUMNS if key in metrics)
+        self.line(f"epoch {event.epoch + 1}/{event.epochs} done: loss {metrics['loss']:.4f}, train Acc-T top-1 "
+                  f"{metrics['train_acc_t_top1']:.3f}{validation}; {metrics['images_per_second']:.2f} images/s")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.log.close()
+
+
+def _parse_options(items: list[str] | None) -> dict[str, Any]:
+    """``NAME=JSON_VALUE`` pairs (a value that is not JSON is kept as a string)."""
+    options: dict[str, Any] = {}
+    for item in items or []:
+        name, separator, value = item.partition("=")
+        if not separator:
+            raise typer.BadParameter(f"--option {item!r}: expected NAME=VALUE")
+        try:
+            options[name] = json.loads(value)
+        except json.JSONDecodeError:
+            options[name] = value
+    return options
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``train`` command to the togcrf CLI."""
     def train_command(
@@ -397,14 +649,23 @@ def register(app: typer.Typer) -> None:
         model: Annotated[str, typer.Option(help=f"One of {', '.join(MODEL_NAMES)}.")] = "tog-crfs",
         backbone: Annotated[str, typer.Option(help=f"One of {', '.join(BACKBONES)}.")] = "resnet101",
         epochs: Annotated[int, typer.Option(help="Epochs (paper: 10).")] = 10,
-        lr: Annotated[float, typer.Option(help="SGD learning rate (paper: 0.001).")] = 0.001,
+        lr: Annotated[float, typer.Option(help="Learning rate (paper: 0.001 with SGD).")] = 0.001,
+        optimizer: Annotated[str, typer.Option(help=f"One of {', '.join(OPTIMIZERS)} (paper: sgd).")] = "sgd",
+        lr_schedule: Annotated[str, typer.Option(
+            help="step: x0.1 from each --lr-decay-epoch; cosine: to 0 over the run.")] = "step",
+        lr_decay_epoch: Annotated[list[int] | None, typer.Option(help="With step: decay from this epoch.")] = None,
         momentum: Annotated[float, typer.Option(help="SGD momentum (paper: 0.9).")] = 0.9,
-        weight_decay: Annotated[float, typer.Option(help="SGD weight decay.")] = 1e-4,
+        weight_decay: Annotated[float, typer.Option(help="Weight decay.")] = 1e-4,
         batch_size: Annotated[int, typer.Option(help="Images per step.")] = 2,
         image_size: Annotated[int | None, typer.Option(help="Longer image side fed to the network.")] = None,
         augment: Annotated[bool, typer.Option(help="Flips, 90-degree turns and scale jitter.")] = True,
+        scale_jitter: Annotated[float, typer.Option(help="Augmentation scales in [1 - this, 1].")] = 0.1,
         warmup_steps: Annotated[int, typer.Option(help="Linear learning-rate warm-up steps.")] = 100,
         clip_grad_norm: Annotated[float, typer.Option(help="Gradient-norm clipping (0: off).")] = 10.0,
+        val_samples: Annotated[int, typer.Option(
+            help="Training samples held out for validation metrics after every epoch (0: none).")] = 0,
+        time_budget: Annotated[float | None, typer.Option(
+            help="Minutes of training after which the run stops (its checkpoint then holds the part epoch).")] = None,
         resume: Annotated[bool, typer.Option(help="Continue RUN_DIR/checkpoint.pt.")] = False,
         device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
         amp: Annotated[bool, typer.Option(help="Mixed precision on CUDA.")] = True,
@@ -413,48 +674,28 @@ def register(app: typer.Typer) -> None:
         workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = 0,
         option: Annotated[list[str] | None, typer.Option(help="Model option NAME=JSON_VALUE (ModelOptions).")] = None,
     ) -> None:
-        """Train TOG / TOG-CRFs (or FCGN+Task) on samples shards."""
-        from tqdm import tqdm  # noqa: PLC0415 - CLI side only
+        """Train TOG / TOG-CRFs (or FCGN+Task) on samples shards.
 
-        model_options = {}
-        for item in option or []:
-            name, separator, value = item.partition("=")
-            if not separator:
-                raise typer.BadParameter(f"--option {item!r}: expected NAME=VALUE")
-            try:
-                model_options[name] = json.loads(value)
-            except json.JSONDecodeError:
-                model_options[name] = value
+        Progress: a bar on a terminal; a line every 30 s in RUN_DIR/train.log
+        (and on stdout when it is not a terminal) with the losses, images/s
+        and the time left. The CPU recipe is ``togcrf reproduce --scale cpu``.
+        """
         config = TrainConfig(
             resume=resume, data=str(data), out=str(out), pipeline=pipeline, model=model, backbone=backbone,
             epochs=epochs, lr=lr, momentum=momentum, weight_decay=weight_decay, batch_size=batch_size,
             image_size=image_size, augment=augment, warmup_steps=warmup_steps, clip_grad_norm=clip_grad_norm,
             device=device, amp=amp, seed=seed, max_samples=max_samples, workers=workers,
-            model_options=model_options)
-        bar = None
-
-        def show(event: Progress) -> None:
-            nonlocal bar
-            if event.metrics is not None:
-                if bar is not None:
-                    bar.close()
-                    bar = None
-                typer.echo(f"epoch {event.epoch + 1}/{event.epochs}: loss {event.metrics['loss']:.4f}, "
-                           f"train Acc-T top-1 {event.metrics['train_acc_t_top1']:.3f}")
-                return
-            if bar is None:
-                bar = tqdm(total=event.steps, desc=f"epoch {event.epoch + 1}/{event.epochs}", unit="step")
-            bar.update(1)
-            bar.set_postfix(loss=f"{sum(event.losses.values()):.3f}")
-
+            model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
+            lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
+            time_budget_minutes=time_budget)
+        report = ProgressReport(out, epochs)
         try:
-            result = train(config, show)
+            result = train(config, report)
         except (ValueError, FileNotFoundError, FloatingPointError) as error:
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(1) from error
         finally:
-            if bar is not None:
-                bar.close()
+            report.close()
         if not result:
             typer.echo(f"{out}: already trained {epochs} epochs")
         else:
