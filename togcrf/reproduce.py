@@ -25,6 +25,7 @@ re-evaluates.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any
@@ -148,8 +149,12 @@ def reproduce(
     device: str = "auto",
     seed: int = 0,
     speed_images: int = 10,
+    progress: Callable[[Path, Scale], Callable[[Any], None] | None] | None = None,
 ) -> dict[str, Any]:
     """Train and evaluate the models; write the table, figure 5 and a prediction picture.
+
+    ``progress(run_dir, scale)``, when given, makes the progress callback of
+    each model's training (``togcrf.train.Progress`` events).
 
     Returns
     -------
@@ -167,8 +172,13 @@ def reproduce(
         done = _trained_epochs(checkpoint)
         if done < scale.epochs:
             log.info("training %s (%d of %d epochs done)", model, done, scale.epochs)
-            train(scale.train_config(data_dir, run_dir, model, pipeline=pipeline, device=device, seed=seed,
-                                     resume=done > 0))
+            report = progress(run_dir, scale) if progress is not None else None
+            try:
+                train(scale.train_config(data_dir, run_dir, model, pipeline=pipeline, device=device, seed=seed,
+                                         resume=done > 0), report)
+            finally:
+                if report is not None:
+                    report.close()
         document = evaluate_checkpoint(checkpoint, data_dir, pipeline=pipeline, split="test", device=eval_device,
                                        max_samples=scale.eval_max_samples, speed_images=speed_images)
         write_json(run_dir / EVAL_FILE, document)
@@ -232,8 +242,12 @@ def reproduce_command(
         unknown = [name for name in selected if name not in TABLE_MODELS]
         if unknown or not selected:
             raise ValueError(f"--models {models!r}: expected names among {TABLE_MODELS}")
+        from togcrf.train import ProgressReport  # noqa: PLC0415
+
         result = reproduce(data, out, chosen, pipeline=pipeline, models=selected, device=device, seed=seed,
-                           speed_images=speed_images)
+                           speed_images=speed_images,
+                           progress=lambda run_dir, size: ProgressReport(run_dir, size.epochs,
+                                                                         size.time_budget_minutes))
     except (FileNotFoundError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error

@@ -561,12 +561,13 @@ class ProgressReport:
     #: Seconds between progress lines.
     LINE_INTERVAL = 30.0
 
-    def __init__(self, run_dir: Path, epochs: int) -> None:
+    def __init__(self, run_dir: Path, epochs: int, budget_minutes: float | None = None) -> None:
         from tqdm import tqdm  # noqa: PLC0415 - CLI side only
 
         self._tqdm = tqdm
         self.bar = None
         self.epochs = epochs
+        self.budget_seconds = None if budget_minutes is None else 60.0 * budget_minutes
         self.started = time.perf_counter()
         self.last_line = 0.0
         self.steps_done = 0
@@ -592,6 +593,8 @@ class ProgressReport:
         per_step = elapsed / self.steps_done
         epoch_left = (event.steps - event.step) * per_step
         run_left = epoch_left + (self.epochs - event.epoch - 1) * event.steps * per_step
+        if self.budget_seconds is not None:
+            run_left = min(run_left, self.budget_seconds - elapsed)  # approximate: this clock runs on in validation
         loss = sum(event.losses.values())
         if self.terminal:
             if self.bar is None:
@@ -688,7 +691,7 @@ def register(app: typer.Typer) -> None:
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
             time_budget_minutes=time_budget)
-        report = ProgressReport(out, epochs)
+        report = ProgressReport(out, epochs, time_budget)
         try:
             result = train(config, report)
         except (ValueError, FileNotFoundError, FloatingPointError) as error:
