@@ -5,21 +5,26 @@ FCGN + Task, TOG, TOG-CRFs omega, TOG-CRFs mu and TOG-CRFs with the same
 options, evaluates each on the test split, and writes:
 
 - ``OUT/<model>/`` the run dir of each model (checkpoint.pt, metrics.csv,
-  config.json, eval.json);
-- ``OUT/table2.txt`` and ``OUT/table2.json``: the table;
+  config.json, train.log, eval.json and eval-lab.json: the evaluation under
+  our protocol and the lab's, ``togcrf.metrics``);
+- ``OUT/table2.txt`` and ``OUT/table2.json``: the table (our protocol);
+  ``OUT/table2-lab.txt`` and ``OUT/table2-lab.json``: the lab's;
 - ``OUT/figures/``: figure 5 (omega and mu of TOG-CRFs);
 - ``OUT/prediction.png``: a figure-7-like picture of TOG-CRFs on the first
   test sample.
 
 Scales: ``--scale paper`` is the paper's setting (ResNet-101, 10 epochs,
-native image size, every sample); ``--scale small`` runs end to end on a CPU
-in about half an hour for all five (ResNet-18, 8 epochs, images of at most
-192 px, 64 training and 32 test samples, lr 0.01 after 16 warm-up steps);
-``auto`` (the default) takes ``paper`` where CUDA is available and ``small``
-otherwise. Every option given explicitly overrides
-the scale. A model whose run dir already holds a checkpoint of all epochs
-is not trained again (interrupted runs resume), so re-running only
-re-evaluates.
+native image size, every sample); ``--scale cpu`` is the CPU recipe
+(:data:`CPU_SCALE`: one hour of training per model on 2 cores, on the data
+of ``pipelines/recipe.toml``; docs/togcrf-evaluation.md); ``--scale small``
+only shows the pipeline running end to end (ResNet-18, 8 epochs, 64
+training and 32 test samples, about five minutes per model); ``auto`` (the
+default) takes ``paper`` where CUDA is available and ``cpu`` otherwise.
+Every option given explicitly overrides the scale. A model whose run dir
+already holds a complete checkpoint is not trained again (interrupted runs
+resume), so re-running only re-evaluates. Two seeds: run twice with
+``--seed`` into two folders and put the rows side by side with ``togcrf
+table``.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import torch
 import typer
 
 from togcrf.evaluate import EVAL_FILE, evaluate_checkpoint, format_table, row_name, write_json
+from togcrf.metrics import PROTOCOLS
 
 log = logging.getLogger(__name__)
 
@@ -122,9 +128,9 @@ CPU_SCALE = Scale("resnet18", 50, 192, None, None, 4, warmup_steps=200, lr=0.001
 
 
 def resolve_scale(name: str) -> Scale:
-    """The scale named ``paper``, ``small`` or ``auto`` (paper with CUDA, else small)."""
+    """The scale named ``paper``, ``cpu``, ``small`` or ``auto`` (paper with CUDA, else cpu)."""
     if name == "auto":
-        name = "paper" if torch.cuda.is_available() else "small"
+        name = "paper" if torch.cuda.is_available() else "cpu"
     scales = {"paper": PAPER_SCALE, "small": SMALL_SCALE, "cpu": CPU_SCALE}
     if name not in scales:
         raise ValueError(f"--scale {name!r}: expected auto, paper, cpu or small")
@@ -165,7 +171,7 @@ def reproduce(
     from togcrf.train import load_checkpoint, resolve_device, train  # noqa: PLC0415
 
     eval_device = str(resolve_device(device))
-    rows = []
+    rows: dict[str, list] = {protocol: [] for protocol in PROTOCOLS}
     for model in models:
         run_dir = out_dir / model
         checkpoint = run_dir / "checkpoint.pt"
@@ -179,21 +185,30 @@ def reproduce(
             finally:
                 if report is not None:
                     report.close()
-        document = evaluate_checkpoint(checkpoint, data_dir, pipeline=pipeline, split="test", device=eval_device,
-                                       max_samples=scale.eval_max_samples, speed_images=speed_images)
-        write_json(run_dir / EVAL_FILE, document)
-        rows.append((row_name(document), document["row"]))
-        log.info("%s: %s", model, document["row"])
-    table = format_table(rows)
-    (out_dir / "table2.txt").write_text(table + "\n")
-    write_json(out_dir / "table2.json", {"data": str(data_dir), "pipeline": pipeline, "device": eval_device,
-                                         "scale": scale.__dict__, "rows": [{"name": name, **row}
-                                                                           for name, row in rows]})
+        for protocol in PROTOCOLS:
+            document = evaluate_checkpoint(checkpoint, data_dir, pipeline=pipeline, split="test",
+                                           device=eval_device, max_samples=scale.eval_max_samples,
+                                           speed_images=speed_images, protocol=protocol)
+            write_json(run_dir / eval_file(protocol), document)
+            rows[protocol].append((row_name(document), document["row"]))
+            log.info("%s, protocol %s: %s", model, protocol, document["row"])
+    for protocol, protocol_rows in rows.items():
+        suffix = "" if protocol == "ours" else f"-{protocol}"
+        (out_dir / f"table2{suffix}.txt").write_text(format_table(protocol_rows, protocol) + "\n")
+        write_json(out_dir / f"table2{suffix}.json", {
+            "data": str(data_dir), "pipeline": pipeline, "device": eval_device, "protocol": protocol,
+            "scale": scale.__dict__, "rows": [{"name": name, **row} for name, row in protocol_rows]})
+    table = format_table(rows["ours"], "ours")
     if "tog-crfs" in models:
         model, _ = load_checkpoint(out_dir / "tog-crfs" / "checkpoint.pt")
         draw_crf_figures(crf_matrices(model), out_dir / "figures")
         _draw_first_test_sample(out_dir / "tog-crfs" / "checkpoint.pt", data_dir, pipeline, out_dir / "prediction.png")
-    return {"rows": rows, "table": table}
+    return {"rows": rows["ours"], "table": table}
+
+
+def eval_file(protocol: str) -> str:
+    """The evaluation file of a run dir under a protocol: ``eval.json`` (ours) or ``eval-lab.json``."""
+    return EVAL_FILE if protocol == "ours" else f"eval-{protocol}.json"
 
 
 def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | None, path: Path) -> None:
@@ -214,7 +229,7 @@ def reproduce_command(
     data: Annotated[Path, typer.Option("--data", help="Data dir with samples shards (train and test splits).")],
     out: Annotated[Path, typer.Option("--out", help="Folder for the five run dirs, the table and figures.")],
     pipeline: Annotated[str | None, typer.Option(help="Use the shards of this pipeline's manifest.")] = None,
-    scale: Annotated[str, typer.Option(help="auto, paper or small (see `togcrf.reproduce`).")] = "auto",
+    scale: Annotated[str, typer.Option(help="auto, paper, cpu or small (see `togcrf.reproduce`).")] = "auto",
     models: Annotated[str, typer.Option(help="Comma-separated subset of the five models.")] = ",".join(TABLE_MODELS),
     epochs: Annotated[int | None, typer.Option(help="Override the scale's epochs.")] = None,
     backbone: Annotated[str | None, typer.Option(help="Override the scale's backbone.")] = None,
@@ -252,7 +267,8 @@ def reproduce_command(
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     typer.echo(result["table"])
-    typer.echo(f"scale {chosen}; written to {out}/table2.txt, table2.json, figures/, prediction.png")
+    typer.echo(f"scale {chosen}; written to {out}/table2.txt and table2.json (our protocol), table2-lab.txt and "
+               f"table2-lab.json (the lab's), figures/, prediction.png")
 
 
 def register(app: typer.Typer) -> None:
