@@ -4,6 +4,12 @@ Every stage is a command that takes ``--config PIPELINE.toml``; ``osgd run``
 runs them all in order; ``osgd status`` shows what is built. Global options
 come before the command: ``osgd --data-dir /scratch/osgd --workers 8 run
 pipelines/default.toml``.
+
+What goes wrong is said in one line per problem (the file, the key or value,
+what is allowed); items that fail are listed together at the end (stage,
+item, file, cause) and the command exits 1. Tracebacks only with ``--debug``.
+On a terminal progress is a set of live bars; elsewhere (a log file) it is a
+line per stage every ``OSGD_PROGRESS_INTERVAL`` seconds (default 30).
 """
 
 from __future__ import annotations
@@ -17,22 +23,27 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
-from osgd.config import ConfigError, config_to_toml
+from osgd.config import ConfigError, PipelineConfig, config_to_toml
+from osgd.errors import describe
 from osgd.executor import make_executor
 from osgd.pipeline import (
     COMMAND_STAGES,
     MissingInputError,
+    PlanError,
     load_pipeline,
     pipeline_status,
     run_stages,
     stage_by_name,
     stages,
 )
-from osgd.stage import StageReport
-from osgd.store import ShardStore
+from osgd.progress import LineProgress
+from osgd.stage import ItemFailure, StageReport
+from osgd.store import DataDirError, ShardStore, check_data_dir, write_problem
 
 console = Console(stderr=True)
 app = typer.Typer(
@@ -51,6 +62,7 @@ app.add_typer(show_app, name="show")
 class _Global:
     data_dir: Path = Path("data")
     workers: int | None = None
+    debug: bool = False
 
 
 @app.callback()
@@ -64,6 +76,7 @@ def main(
     log_level: Annotated[
         str, typer.Option(help="debug, info, warning or error.", case_sensitive=False)
     ] = "warning",
+    debug: Annotated[bool, typer.Option("--debug", help="Show the traceback of every error.")] = False,
 ) -> None:
     level = getattr(logging, log_level.upper(), None)
     if not isinstance(level, int):
@@ -71,6 +84,7 @@ def main(
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     _Global.data_dir = data_dir
     _Global.workers = workers
+    _Global.debug = debug
 
 
 ConfigOption = Annotated[
@@ -83,21 +97,35 @@ SetOption = Annotated[
 ForceOption = Annotated[bool, typer.Option("--force", help="Rebuild shards even when they are done.")]
 
 
+def _say(text: str, style: str | None = None) -> None:
+    """Print text as it is: no markup (``[scenes]`` stays), no wrapping (one problem, one line)."""
+    console.print(text, markup=False, highlight=False, soft_wrap=True, style=style)
+
+
 def _fail(message: str) -> None:
-    console.print(f"[red]error:[/red] {message}")
+    console.print(Text.assemble(("error: ", "red"), message), highlight=False, soft_wrap=True)
     raise typer.Exit(2)
 
 
-def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...], force: bool) -> None:
+def _load(config_path: Path, overrides: list[str] | None) -> PipelineConfig:
     try:
-        config = load_pipeline(config_path, overrides or [])
+        return load_pipeline(config_path, overrides or [])
     except ConfigError as error:
         _fail(str(error))
-    pending = [name for name in names if not stage_by_name(name).implemented]
-    if pending:
-        _fail(f"stage(s) {pending} not implemented yet")
-    store = ShardStore(_Global.data_dir)
-    executor = make_executor(_Global.workers)
+        raise  # unreachable: _fail exits
+
+
+def _store(writable: bool) -> ShardStore:
+    """The data dir's store, after checking it is a folder (and writable, when asked)."""
+    try:
+        check_data_dir(_Global.data_dir, writable)
+    except DataDirError as error:
+        _fail(str(error))
+    return ShardStore(_Global.data_dir)
+
+
+def _bar_progress() -> tuple[Any, Any, Any]:
+    """Live bars for a terminal: the context manager and the two callbacks of run_stages."""
     progress = Progress(
         TextColumn("[bold]{task.description:<8}"),
         BarColumn(),
@@ -120,39 +148,75 @@ def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...],
         summary = ", ".join(f"{count} {label}" for label, count in counts[name].items() if count)
         progress.update(tasks[name], advance=1, status=summary)
 
+    return progress, on_stage, on_item
+
+
+def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...], force: bool) -> None:
+    config = _load(config_path, overrides)
+    pending = [name for name in names if not stage_by_name(name).implemented]
+    if pending:
+        _fail(f"stage(s) {pending} not implemented yet")
+    store = _store(writable=True)
+    executor = make_executor(_Global.workers)
+    if console.is_terminal:
+        progress, on_stage, on_item = _bar_progress()
+    else:
+        progress = LineProgress(_say)
+        on_stage, on_item = progress.on_stage, progress.on_item
     try:
         with progress:
             reports = run_stages(config, store, executor, names, force=force, on_item=on_item, on_stage=on_stage)
-    except MissingInputError as error:
+    except (MissingInputError, PlanError) as error:
         _fail(str(error))
-    failed = False
+    except OSError as error:  # writing the manifest: a full disk, a folder gone read-only
+        _fail(write_problem(error))
     for report in reports:
-        failed |= _print_report(report, store)
-    console.print(f"data dir: {store.root}   manifest: {store.manifest_path(config.pipeline.name)}")
-    if failed:
+        _print_report(report, store)
+    failures = [(report.stage, failure) for report in reports for failure in report.failures]
+    _say(f"data dir: {store.root}   manifest: {store.manifest_path(config.pipeline.name)}")
+    if failures:
+        _print_failures(failures)
         raise typer.Exit(1)
 
 
-def _print_report(report: StageReport, store: ShardStore) -> bool:
+def _print_report(report: StageReport, store: ShardStore) -> None:
     stage = stage_by_name(report.stage)
     rows = sum(record.rows for record in report.records)
-    console.print(
-        f"[bold]{report.stage}[/bold]: {len(report.records)} shards, {rows} rows "
-        f"({report.built} built, {report.reused} reused, {len(report.failures)} failed)"
+    _say(
+        f"{report.stage}: {len(report.records)} shards, {rows} rows "
+        f"({report.built} built, {report.reused} reused, {len(report.failures)} failed)",
+        style="bold",
     )
     for problem in report.rebuilt:
-        console.print(f"  [yellow]rebuilt[/yellow] {problem}")
+        _say(f"  rebuilt {problem}")
+    for item_id, warnings in sorted(report.warnings.items()):
+        for warning in warnings:
+            _say(f"  warning {item_id}: {warning}")
     for item_id, notes in sorted(report.notes.items()):
         for note in notes:
-            console.print(f"  [yellow]note[/yellow] {item_id}: {note}")
-    for failure in report.failures:
-        console.print(f"  [red]failed[/red] {failure.item_id}: {failure.error}\n{failure.traceback}")
+            _say(f"  note {item_id}: {note}")
     summarize = getattr(stage, "summary", None)
     if summarize is not None and report.records:
         text = summarize(store, report.records)
         if text:
-            console.print(text)
-    return not report.ok
+            _say(text)
+
+
+def _print_failures(failures: list[tuple[str, ItemFailure]]) -> None:
+    """One table of the failed items: stage, item, file, cause; then tracebacks with --debug."""
+    rows = [("stage", "item", "file", "cause")]
+    rows += [(stage, failure.item_id, failure.file or "-", failure.cause or failure.error)
+             for stage, failure in failures]
+    widths = [max(len(row[column]) for row in rows) for column in range(3)]
+    _say(f"{len(failures)} item(s) failed; the other items and stages were built without them. "
+         "Fix the files and run again: only these and what depends on them are built.", style="red")
+    for row in rows:
+        _say("  " + "  ".join(cell.ljust(width) for cell, width in zip(row[:3], widths, strict=True)) + "  " + row[3])
+    if _Global.debug:
+        for stage, failure in failures:
+            _say(f"\n{stage} {failure.item_id}:\n{failure.traceback}")
+    else:
+        _say("(--debug shows their tracebacks)")
 
 
 def _stage_command(command: str, names: tuple[str, ...]) -> None:
@@ -185,27 +249,26 @@ def run_pipeline(
 def show_config(config: ConfigOption, set_: SetOption = None) -> None:
     """Print the full config a pipeline runs with: every parameter of every stage,
     defaults filled in, each with its meaning. Valid TOML: save it to start a new pipeline."""
-    try:
-        pipeline = load_pipeline(config, set_ or [])
-    except ConfigError as error:
-        _fail(str(error))
+    pipeline = _load(config, set_)
     typer.echo(config_to_toml(pipeline), nl=False)
 
 
 @app.command("status")
 def status(config: ConfigOption, set_: SetOption = None) -> None:
-    """Per stage: shards done, missing, corrupt, and stale (on disk, not in this plan)."""
+    """Per stage: shards done, missing, failed (items the last run could not build),
+    corrupt (failing their checksum or holding another key) and stale (on disk, not in this plan)."""
+    pipeline = _load(config, set_)
+    store = _store(writable=False)
     try:
-        pipeline = load_pipeline(config, set_ or [])
-    except ConfigError as error:
+        rows = pipeline_status(pipeline, store)
+    except PlanError as error:
         _fail(str(error))
-    store = ShardStore(_Global.data_dir)
-    table = Table(title=f"{pipeline.pipeline.name} in {store.root}")
-    for column in ("stage", "done", "missing", "corrupt", "stale"):
+    table = Table(title=escape(f"{pipeline.pipeline.name} in {store.root}"))
+    for column in ("stage", "done", "missing", "failed", "corrupt", "stale"):
         table.add_column(column, justify="left" if column == "stage" else "right")
-    for row in pipeline_status(pipeline, store):
+    for row in rows:
         name = row.stage if stage_by_name(row.stage).implemented else f"{row.stage} (not implemented yet)"
-        table.add_row(name, str(row.done), str(row.missing), str(row.corrupt), str(row.stale))
+        table.add_row(name, str(row.done), str(row.missing), str(row.failed), str(row.corrupt), str(row.stale))
     Console().print(table)
 
 
@@ -221,12 +284,13 @@ def _dispatch(target: str, **kwargs: Any) -> None:
     function = getattr(module, function_name, None)
     if function is None:
         _fail(f"not implemented yet ({target})")
+    store = _store(writable=False)
     try:
-        result = function(store=ShardStore(_Global.data_dir), **kwargs)
+        result = function(store=store, **kwargs)
     except (KeyError, ValueError, FileNotFoundError) as error:
         _fail(str(error))
     if result is not None:
-        console.print(str(result))
+        _say(str(result))
 
 
 OutOption = Annotated[Path, typer.Option("--out", "-o", help="PNG file to write.")]
@@ -276,10 +340,16 @@ def export(
 
 
 def run() -> None:
-    """Console-script entry point."""
+    """Console-script entry point: an unexpected error is one line, its traceback only with ``--debug``."""
     os.environ.setdefault("PYTHONHASHSEED", "0")
     try:
         app()
     except KeyboardInterrupt:
-        console.print("interrupted; finished shards are kept, rerun to resume")
+        _say("interrupted; finished shards are kept, rerun to resume")
         sys.exit(130)
+    except Exception as error:
+        if _Global.debug or "--debug" in sys.argv:
+            raise
+        file, cause = describe(error)
+        _say(f"error: {file + ': ' if file else ''}{cause} (--debug shows the traceback)", style="red")
+        sys.exit(1)

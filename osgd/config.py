@@ -7,6 +7,12 @@ can be overridden with ``section.key=value`` (the value is read as TOML, so
 ``3``, ``0.5``, ``true``, ``"text"`` and ``[1, 2]`` all work; a bare word is
 a string).
 
+Values are checked strictly: a string or a boolean is no integer (``count =
+"4"`` and ``count = true`` are errors), an integer is a valid float. Each
+problem is one line naming the file (or the override that set the value),
+``[section] key = value`` and what is allowed; an unknown key lists the
+section's keys.
+
 Strings may name environment variables as ``${NAME}`` or ``${NAME:-default}``.
 Relative paths in location fields are resolved against the config file's
 folder.
@@ -21,11 +27,13 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from osgd.stage import StageParams
+
+_Model = TypeVar("_Model", bound=BaseModel)
 
 
 class ConfigError(ValueError):
@@ -119,13 +127,51 @@ def _expand(value: Any) -> Any:
     return value
 
 
-def _describe_error(origin: str, section: str, error: ValidationError) -> str:
+def _describe_error(
+    origin: str, section: str, error: ValidationError, model: type[BaseModel], overrides: Mapping[str, str]
+) -> str:
+    """One line per problem: where it came from (the file or the override), ``[section] key = value``, the rule.
+
+    Parameters
+    ----------
+    overrides : mapping of key to the override text that set it
+        A problem with such a key blames the override, not the file.
+    """
     lines = []
     for problem in error.errors():
-        key = ".".join(str(part) for part in problem["loc"])
-        got = problem.get("input")
-        lines.append(f"{origin}: [{section}] {key} = {got!r}: {problem['msg']}")
+        location = [str(part) for part in problem["loc"]]
+        source = f"override {overrides[location[0]]!r}" if location and location[0] in overrides else origin
+        message = problem["msg"].removeprefix("Value error, ")
+        if problem["type"] == "extra_forbidden":
+            message = f"unknown key; allowed keys: {', '.join(model.model_fields)}"
+        if location:
+            lines.append(f"{source}: [{section}] {'.'.join(location)} = {problem.get('input')!r}: {message}")
+        else:  # a rule across keys: blame the file and every override of the section
+            source += "".join(f", override {text!r}" for text in overrides.values())
+            lines.append(f"{source}: [{section}]: {message}")
     return "\n".join(lines)
+
+
+def _validate(
+    model: type[_Model], values: Mapping[str, Any], origin: str, section: str, overrides: Mapping[str, str]
+) -> _Model:
+    """Validate one section strictly: no string or boolean for a number, no number for a string.
+
+    The values are validated as JSON, where pydantic's strict mode still
+    takes an integer for a float and a list for a tuple (TOML has no tuples).
+
+    Raises
+    ------
+    ConfigError
+    """
+    try:
+        text = json.dumps(dict(values), default=str)
+    except ValueError as error:  # a circular or otherwise unwritable value
+        raise ConfigError(f"{origin}: [{section}]: {error}") from error
+    try:
+        return model.model_validate_json(text, strict=True)
+    except ValidationError as error:
+        raise ConfigError(_describe_error(origin, section, error, model, overrides)) from error
 
 
 def build_config(
@@ -160,10 +206,14 @@ def build_config(
     loose = [name for name, value in document.items() if not isinstance(value, dict)]
     if loose:
         raise ConfigError(f"{origin}: top-level key(s) {loose} must sit inside a [section]")
+    allowed = {"pipeline", *stage_params}
+    overridden: dict[str, dict[str, str]] = {}
     for override in overrides:
         section, key, value = parse_override(override)
+        if section not in allowed:
+            raise ConfigError(f"override {override!r}: unknown section [{section}]; allowed: {sorted(allowed)}")
         sections.setdefault(section, {})[key] = value
-    allowed = {"pipeline", *stage_params}
+        overridden.setdefault(section, {})[key] = override
     unknown = sorted(set(sections) - allowed)
     if unknown:
         raise ConfigError(f"{origin}: unknown section(s) {unknown}; allowed: {sorted(allowed)}")
@@ -171,10 +221,7 @@ def build_config(
 
     pipeline_values = sections.get("pipeline", {})
     pipeline_values.setdefault("name", Path(origin).stem if origin != "<config>" else "pipeline")
-    try:
-        pipeline = PipelineSection(**pipeline_values)
-    except ValidationError as error:
-        raise ConfigError(_describe_error(origin, "pipeline", error)) from error
+    pipeline = _validate(PipelineSection, pipeline_values, origin, "pipeline", overridden.get("pipeline", {}))
 
     params: dict[str, StageParams] = {}
     for name, params_class in stage_params.items():
@@ -186,10 +233,7 @@ def build_config(
                 raw = values[field_name]
                 if raw and not Path(raw).is_absolute():
                     values[field_name] = str((base_dir / raw).resolve())
-        try:
-            params[name] = params_class(**values)
-        except ValidationError as error:
-            raise ConfigError(_describe_error(origin, name, error)) from error
+        params[name] = _validate(params_class, values, origin, name, overridden.get(name, {}))
     return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None)
 
 

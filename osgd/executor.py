@@ -18,6 +18,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from osgd.errors import describe
+
 
 @dataclass(frozen=True)
 class TaskFailure:
@@ -26,13 +28,25 @@ class TaskFailure:
     Attributes
     ----------
     error : str
-        ``repr`` of the exception.
+        One line: the file (when known) and the cause.
     traceback : str
         The formatted traceback, from the process that ran the task.
+    file : str
+        The file the error is about; empty when unknown (:func:`osgd.errors.describe`).
+    cause : str
+        What went wrong, one line, without the file.
     """
 
     error: str
     traceback: str
+    file: str = ""
+    cause: str = ""
+
+
+def failure_of(error: BaseException) -> TaskFailure:
+    """The :class:`TaskFailure` describing ``error``; call it inside the ``except`` block."""
+    file, cause = describe(error)
+    return TaskFailure(f"{file}: {cause}" if file else cause, traceback.format_exc(), file, cause)
 
 
 def call_safely(function: Callable[[Any], Any], task: Any) -> Any:
@@ -40,7 +54,7 @@ def call_safely(function: Callable[[Any], Any], task: Any) -> Any:
     try:
         return function(task)
     except Exception as error:
-        return TaskFailure(repr(error), traceback.format_exc())
+        return failure_of(error)
 
 
 class Executor(Protocol):
@@ -96,8 +110,8 @@ class ProcessPoolExecutor:
                 index = futures[future]
                 try:
                     yield index, future.result()
-                except Exception as error:
-                    yield index, TaskFailure(repr(error), traceback.format_exc())
+                except Exception as error:  # the worker died, or the result did not pickle
+                    yield index, failure_of(error)
 
 
 def make_executor(workers: int | None) -> Executor:

@@ -9,12 +9,13 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from osgd.config import PipelineConfig, load_config
+from osgd.errors import describe
 from osgd.executor import Executor
 from osgd.schemas import SCHEMA_VERSION
 from osgd.stage import PlannedShard, Stage, StageReport, run_stage
@@ -76,12 +77,43 @@ def load_pipeline(path: str | Path, overrides: Sequence[str] = ()) -> PipelineCo
     return load_config(path, stage_params_classes(), overrides)
 
 
-def plan_pipeline(config: PipelineConfig) -> dict[str, list[PlannedShard]]:
-    """The planned shards of every stage; reads no shard content."""
+class PlanError(RuntimeError):
+    """A stage cannot plan its work (a models folder that is not there...); one line."""
+
+
+def _plan_stage(
+    stage: Stage, config: PipelineConfig, planned: Mapping[str, Sequence[PlannedShard]], leave_out: Collection[str]
+) -> list[PlannedShard]:
+    """The planned shards of one stage, given those of the stages before it, less ``leave_out`` item ids."""
+    upstream = {table: planned[table] for table in stage.inputs}
+    try:
+        shards = stage.planned(config.params[stage.name], config.pipeline.seed, upstream)
+    except (OSError, ValueError, KeyError) as error:
+        file, cause = describe(error)
+        raise PlanError(f"stage {stage.name} cannot plan its work: {file + ': ' if file else ''}{cause}") from error
+    return [shard for shard in shards if shard.item.item_id not in leave_out]
+
+
+def plan_pipeline(
+    config: PipelineConfig, failed: Mapping[str, Collection[str]] | None = None
+) -> dict[str, list[PlannedShard]]:
+    """The planned shards of every stage; reads no shard content.
+
+    Parameters
+    ----------
+    config : PipelineConfig
+    failed : mapping of stage name to item ids, optional
+        Items that failed: left out of their stage's plan, so that the later
+        stages plan without them (a scene draws from the models that exist).
+
+    Raises
+    ------
+    PlanError
+    """
+    failed = failed or {}
     planned: dict[str, list[PlannedShard]] = {}
     for stage in stages():
-        upstream = {table: planned[table] for table in stage.inputs}
-        planned[stage.name] = stage.planned(config.params[stage.name], config.pipeline.seed, upstream)
+        planned[stage.name] = _plan_stage(stage, config, planned, failed.get(stage.name, ()))
     return planned
 
 
@@ -89,8 +121,10 @@ class MissingInputError(RuntimeError):
     """A stage was asked to run before the stages it reads from."""
 
 
-def _manifest_stage_entry(stage: Stage, config: PipelineConfig, report: StageReport, planned: int) -> dict[str, Any]:
-    return {
+def _manifest_stage_entry(
+    stage: Stage, config: PipelineConfig, report: StageReport, planned: int
+) -> dict[str, Any]:
+    entry = {
         "version": stage.version,
         "table": stage.table,
         "params": config.params[stage.name].key_dict(),
@@ -98,6 +132,39 @@ def _manifest_stage_entry(stage: Stage, config: PipelineConfig, report: StageRep
         "rows": sum(record.rows for record in report.records),
         "shards": [record.as_dict() for record in report.records],
     }
+    if report.failures:
+        # Item ids only (no messages: they hold paths): later commands plan without them.
+        entry["failed"] = sorted(failure.item_id for failure in report.failures)
+    return entry
+
+
+def recorded_stages(store: ShardStore, pipeline: str) -> dict[str, Any]:
+    """The ``stages`` of the pipeline's manifest on disk; empty when none (or of another schema)."""
+    manifest = store.read_manifest(pipeline) or {}
+    return dict(manifest.get("stages", {})) if manifest.get("schema_version") == SCHEMA_VERSION else {}
+
+
+def recorded_failures(recorded: Mapping[str, Any]) -> dict[str, set[str]]:
+    """Stage name to the item ids its last run could not build, from :func:`recorded_stages`."""
+    return {name: set(entry.get("failed", ())) for name, entry in recorded.items() if isinstance(entry, dict)}
+
+
+def _check_inputs(
+    stage: Stage, planned: Mapping[str, Sequence[PlannedShard]], names: Sequence[str], store: ShardStore,
+    config: PipelineConfig,
+) -> None:
+    """Raise :class:`MissingInputError` when a table this stage reads, made by another command, is not built."""
+    for table in stage.inputs:
+        if table in names:
+            continue
+        missing = [shard for shard in planned[table] if not store.is_done(table, shard.key)]
+        if missing:
+            command = next(command for command, tables in COMMAND_STAGES.items() if table in tables)
+            raise MissingInputError(
+                f"stage {stage.name!r} reads table {table!r}, but {len(missing)} of its "
+                f"{len(planned[table])} shards are not built; run `osgd {command} --config "
+                f"{config.path}` first"
+            )
 
 
 def run_stages(
@@ -112,6 +179,12 @@ def run_stages(
 ) -> list[StageReport]:
     """Run the named stages in data-flow order and update the manifest.
 
+    An item that fails does not stop its stage nor the later ones: they are
+    planned without it (and without what it would have fed), the manifest
+    records its item id under ``failed``, and a later command that reads
+    the stage plans without it too. Temporary and lock files that killed
+    processes left in the data dir are removed first.
+
     Parameters
     ----------
     names : sequence of str
@@ -125,30 +198,30 @@ def run_stages(
     ------
     MissingInputError
         If an input shard is missing; names the command that makes it.
+    PlanError
+        If a stage cannot plan its work.
     """
-    planned = plan_pipeline(config)
-    manifest = store.read_manifest(config.pipeline.name) or {}
-    recorded = manifest.get("stages", {}) if manifest.get("schema_version") == SCHEMA_VERSION else {}
+    temporaries, locks = store.clean_leftovers()
+    if temporaries or locks:
+        log.info("removed %d temporary and %d lock file(s) left by killed processes", temporaries, locks)
+    recorded = recorded_stages(store, config.pipeline.name)
+    failed_before = recorded_failures(recorded)
+    ordered = list(stages())
+    last = max((index for index, stage in enumerate(ordered) if stage.name in names), default=-1)
+    planned: dict[str, list[PlannedShard]] = {}
     reports = []
-    selected = [stage for stage in stages() if stage.name in names]
-    for stage in selected:
-        for table in stage.inputs:
-            if table in names:
-                continue
-            missing = [shard for shard in planned[table] if not store.is_done(table, shard.key)]
-            if missing:
-                command = next(command for command, tables in COMMAND_STAGES.items() if table in tables)
-                raise MissingInputError(
-                    f"stage {stage.name!r} reads table {table!r}, but {len(missing)} of its "
-                    f"{len(planned[table])} shards are not built; run `osgd {command} --config "
-                    f"{config.path}` first"
-                )
+    for stage in ordered[: last + 1]:
+        if stage.name not in names:
+            planned[stage.name] = _plan_stage(stage, config, planned, failed_before.get(stage.name, ()))
+            continue
+        shards = _plan_stage(stage, config, planned, ())
+        _check_inputs(stage, planned, names, store, config)
         checksums = {entry["key"]: entry["sha256"] for entry in recorded.get(stage.name, {}).get("shards", [])}
         if on_stage:
-            on_stage(stage.name, len(planned[stage.name]))
+            on_stage(stage.name, len(shards))
         report = run_stage(
             stage,
-            planned[stage.name],
+            shards,
             store,
             executor,
             force=force,
@@ -156,7 +229,9 @@ def run_stages(
             on_item=(lambda item, status, _name=stage.name: on_item(_name, item, status)) if on_item else None,
         )
         reports.append(report)
-        recorded[stage.name] = _manifest_stage_entry(stage, config, report, len(planned[stage.name]))
+        failed_ids = {failure.item_id for failure in report.failures}
+        planned[stage.name] = [shard for shard in shards if shard.item.item_id not in failed_ids]
+        recorded[stage.name] = _manifest_stage_entry(stage, config, report, len(shards))
         store.write_manifest(
             config.pipeline.name,
             {
@@ -166,38 +241,46 @@ def run_stages(
                 "stages": recorded,
             },
         )
-        if not report.ok:
-            break
     return reports
 
 
 @dataclass(frozen=True)
 class StageStatus:
-    """Shards of one stage: done, missing, corrupt (present but failing
-    verification) and stale (on disk but not in the current plan)."""
+    """Shards of one stage: done, missing, failed (items the last run could
+    not build), corrupt (present but failing verification) and stale (on disk
+    but not in the current plan)."""
 
     stage: str
     done: int
     missing: int
     corrupt: int
     stale: int
+    failed: int = 0
 
 
 def pipeline_status(config: PipelineConfig, store: ShardStore) -> list[StageStatus]:
-    """Per stage, how many planned shards are done, missing, corrupt or stale."""
-    planned = plan_pipeline(config)
+    """Per stage, how many planned shards are done, missing, failed, corrupt or stale.
+
+    The plan leaves out the items the manifest records as failed, as
+    :func:`run_stages` does; a shard counts as done when it passes
+    :meth:`ShardStore.verify` against the manifest's checksum too.
+    """
+    recorded = recorded_stages(store, config.pipeline.name)
+    failed = recorded_failures(recorded)
+    planned = plan_pipeline(config, failed)
     result = []
     for stage in stages():
+        checksums = {entry["key"]: entry["sha256"] for entry in recorded.get(stage.name, {}).get("shards", [])}
         done = missing = corrupt = 0
         keys = set()
         for shard in planned[stage.name]:
             keys.add(shard.key)
-            if store.is_done(stage.table, shard.key):
+            if store.is_done(stage.table, shard.key, checksums.get(shard.key)):
                 done += 1
             elif store.shard_path(stage.table, shard.key).exists():
                 corrupt += 1
             else:
                 missing += 1
         stale = len(set(store.keys_on_disk(stage.table)) - keys)
-        result.append(StageStatus(stage.name, done, missing, corrupt, stale))
+        result.append(StageStatus(stage.name, done, missing, corrupt, stale, len(failed.get(stage.name, ()))))
     return result

@@ -96,10 +96,15 @@ class BuildResult:
         The rows, in the schema of the stage's table.
     notes : list of str
         Warnings worth showing a person (a repaired mesh, a dropped pair).
+        They are kept beside the shard and shown again when it is reused.
+    warnings : list of str
+        What happened during this build only (a bad cache file rebuilt):
+        shown once, not kept.
     """
 
     table: pa.Table
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 class Stage(abc.ABC):
@@ -153,12 +158,26 @@ class Stage(abc.ABC):
 
 @dataclass
 class ItemFailure:
-    """A work item whose build raised."""
+    """A work item whose build raised.
+
+    Attributes
+    ----------
+    item_id, key : str
+    error : str
+        One line: the file (when known) and the cause.
+    traceback : str
+    file : str
+        The file at fault; empty when the error names none.
+    cause : str
+        What went wrong, without the file.
+    """
 
     item_id: str
     key: str
     error: str
     traceback: str
+    file: str = ""
+    cause: str = ""
 
 
 @dataclass
@@ -176,6 +195,8 @@ class StageReport:
     failures : list of ItemFailure
     notes : dict of str to list of str
         Notes per item id, from builds now or earlier.
+    warnings : dict of str to list of str
+        Warnings per item id from builds now (:attr:`BuildResult.warnings`).
     """
 
     stage: str
@@ -185,6 +206,7 @@ class StageReport:
     rebuilt: list[str] = field(default_factory=list)
     failures: list[ItemFailure] = field(default_factory=list)
     notes: dict[str, list[str]] = field(default_factory=dict)
+    warnings: dict[str, list[str]] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -201,12 +223,21 @@ class _BuildTask:
     wait: bool = True
 
 
-def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str], bool] | None:
+@dataclass(frozen=True)
+class _Built:
+    """What a worker sends back for one shard."""
+
+    record: ShardRecord
+    notes: list[str]
+    built_here: bool  # False when another process finished it while this one waited
+    warnings: list[str] = field(default_factory=list)
+
+
+def _build_task(task: _BuildTask) -> _Built | None:
     """Build and write one shard; runs in a worker. Module-level so it pickles.
 
-    Returns the shard's record, its notes, and whether it was built here
-    (False when another process finished it while this one waited); None
-    when ``task.wait`` is False and another process holds the shard's lock.
+    Returns None when ``task.wait`` is False and another process holds the
+    shard's lock.
     """
     module_name, class_name = task.stage_ref.split(":")
     stage = getattr(importlib.import_module(module_name), class_name)()
@@ -216,14 +247,14 @@ def _build_task(task: _BuildTask) -> tuple[ShardRecord, list[str], bool] | None:
             return None
         if not task.force and store.is_done(stage.table, task.key):
             # Another process built it while this one waited for the lock.
-            return store.verify(stage.table, task.key), read_notes(store, stage.table, task.key), False
+            return _Built(store.verify(stage.table, task.key), read_notes(store, stage.table, task.key), False)
         result = stage.build(task.item, store)
         if isinstance(result, pa.Table):
             result = BuildResult(result)
         record = store.write(stage.table, task.key, task.item.item_id, result.table)
         if result.notes:
             write_notes(store, stage.table, task.key, result.notes)
-        return record, list(result.notes), True
+        return _Built(record, list(result.notes), True, list(result.warnings))
 
 
 def _notes_path(store: ShardStore, table: str, key: str) -> Path:
@@ -321,23 +352,25 @@ def run_stage(
     for index, outcome in outcomes:
         shard = to_build[index]
         if isinstance(outcome, TaskFailure):
-            log.error(
-                "stage %s, item %s failed: %s\n%s", stage.name, shard.item.item_id, outcome.error, outcome.traceback
-            )
-            report.failures.append(ItemFailure(shard.item.item_id, shard.key, outcome.error, outcome.traceback))
+            log.error("stage %s, item %s failed: %s", stage.name, shard.item.item_id, outcome.error)
+            log.debug("%s", outcome.traceback)
+            report.failures.append(ItemFailure(
+                shard.item.item_id, shard.key, outcome.error, outcome.traceback, outcome.file, outcome.cause
+            ))
             if on_item:
                 on_item(shard.item.item_id, "failed")
             continue
-        record, notes, built_here = outcome
-        done[shard.key] = record
-        if built_here:
+        done[shard.key] = outcome.record
+        if outcome.built_here:
             report.built += 1
         else:
             report.reused += 1
-        if notes:
-            report.notes[shard.item.item_id] = notes
+        if outcome.notes:
+            report.notes[shard.item.item_id] = outcome.notes
+        if outcome.warnings:
+            report.warnings[shard.item.item_id] = outcome.warnings
         if on_item:
-            on_item(shard.item.item_id, "built" if built_here else "reused")
+            on_item(shard.item.item_id, "built" if outcome.built_here else "reused")
 
     report.records = [done[shard.key] for shard in shards if shard.key in done]
     return report

@@ -7,20 +7,25 @@ item's identity and payload (the canonical JSON of every parameter the item
 reads, seed included) and the sorted keys of the shards it reads. The same
 inputs, parameters and code version therefore always map to the same file.
 
-Beside each shard, ``<key>.sha256`` records the sha256 of the shard's bytes
-and its row count. A shard counts as done only when both files exist and the
-bytes hash to the recorded value; anything else is rebuilt, never consumed.
+Beside each shard, ``<key>.sha256`` records the sha256 of the shard's bytes,
+its key and its row count. A shard counts as done only when both files exist,
+the bytes hash to the recorded value and the key stored in the shard's own
+metadata is the key of its file name (a shard copied over another, checksum
+file and all, is caught); anything else is rebuilt, never consumed.
 
 Writes are atomic: bytes go to a temporary file in the same folder, are
 fsynced, then ``os.replace``-d onto the final name, so no partial file ever
 carries a final name. A per-shard ``fcntl`` lock keeps two processes on the
 same data dir from building the same shard twice; the atomic replace keeps
-them from corrupting it even without the lock.
+them from corrupting it even without the lock. Lock files are removed as
+their lock is let go, and :meth:`ShardStore.clean_leftovers` removes the
+temporary and lock files of killed processes.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import io
@@ -108,32 +113,108 @@ def _umask() -> int:
     return current
 
 
+#: The ending of the temporary files :func:`atomic_write_bytes` writes.
+TEMPORARY_SUFFIX = ".tmp"
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` so that ``path`` is either absent, the old
     file, or the complete new file, whatever happens meanwhile.
 
+    The bytes go to ``.<name>.<random>.tmp`` in the same folder, which is
+    ``flock``-ed while it is written: :meth:`ShardStore.clean_leftovers`
+    removes only the temporary files nobody holds (those of killed writers).
     The file gets the permissions an ordinary ``open`` would give it
     (0666 less the umask), not the 0600 of a temporary file.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(handle, 0o666 & ~_umask())
-        with os.fdopen(handle, "wb") as stream:
-            stream.write(data)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
-        raise
+    for _ in range(3):
+        if _write_and_replace(path, data):
+            break
+    else:
+        raise OSError(f"{path}: its temporary file was removed three times while being written")
     # Make the rename itself durable.
     directory = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(directory)
     finally:
         os.close(directory)
+
+
+def _write_and_replace(path: Path, data: bytes) -> bool:
+    """One attempt of :func:`atomic_write_bytes`; False when a cleaner took the
+    temporary file for a leftover in the instant before it was locked."""
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMPORARY_SUFFIX, dir=path.parent)
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        os.fchmod(handle, 0o666 & ~_umask())
+        view = memoryview(data)
+        while view:
+            view = view[os.write(handle, view):]
+        os.fsync(handle)
+        os.replace(temporary, path)
+        return True
+    except FileNotFoundError:
+        return False
+    except OSError as error:  # a full disk: say which file could not be written
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise OSError(error.errno, error.strerror, str(path)) from error
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+    finally:
+        os.close(handle)
+
+
+def _same_file(handle: int, path: Path) -> bool:
+    """Whether ``path`` still names the file open as ``handle``."""
+    try:
+        named = os.stat(path)
+    except FileNotFoundError:
+        return False
+    opened = os.fstat(handle)
+    return (named.st_ino, named.st_dev) == (opened.st_ino, opened.st_dev)
+
+
+def _acquire(path: Path, wait: bool) -> int | None:
+    """An open, ``flock``-ed descriptor of the lock file ``path``; None when busy and not waiting.
+
+    A holder removes the lock file before letting go, so a waiter may wake up
+    holding a file that no longer has a name: it then locks the new one.
+    """
+    while True:
+        handle = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(handle)
+            return None
+        except BaseException:
+            os.close(handle)
+            raise
+        if _same_file(handle, path):
+            return handle
+        os.close(handle)
+
+
+def _remove_if_unheld(path: Path) -> bool:
+    """Remove a lock or temporary file that no process holds; whether it was removed."""
+    try:
+        handle = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if not _same_file(handle, path):
+            return False
+        path.unlink()
+        return True
+    except (BlockingIOError, FileNotFoundError):
+        return False
+    finally:
+        os.close(handle)
 
 
 def table_to_parquet_bytes(table: pa.Table, table_name: str, key: str) -> bytes:
@@ -167,6 +248,21 @@ def table_to_parquet_bytes(table: pa.Table, table_name: str, key: str) -> bytes:
     return buffer.getvalue()
 
 
+def stored_key(path: Path) -> str:
+    """The key a shard file holds in its metadata (``osgd.key``); empty when it has none.
+
+    Raises
+    ------
+    ShardError
+        If the file is not readable Parquet.
+    """
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+    except (OSError, pa.ArrowException) as error:
+        raise ShardError(f"{path}: unreadable Parquet ({error})") from error
+    return metadata.get(b"osgd.key", b"").decode("utf-8", "replace")
+
+
 @dataclass(frozen=True)
 class ShardRecord:
     """What the store knows of one finished shard.
@@ -192,7 +288,59 @@ class ShardRecord:
 
 
 class ShardError(RuntimeError):
-    """A shard is missing, unreadable or fails its checksum."""
+    """A shard is missing, unreadable, fails its checksum or holds another key."""
+
+
+class DataDirError(RuntimeError):
+    """The data dir cannot be used (a file, not writable, full); one line saying what to do."""
+
+
+def check_data_dir(root: Path, writable: bool) -> None:
+    """Check that ``root`` can serve as a data dir, before anything is read or written.
+
+    Parameters
+    ----------
+    root : Path
+    writable : bool
+        Also create it if needed and write a probe file in it.
+
+    Raises
+    ------
+    DataDirError
+        Naming the folder, the problem and what to do.
+    """
+    for folder in (root, *root.parents):
+        if folder.exists() and not folder.is_dir():
+            what = "is a file" if folder == root else f"lies under {folder}, which is a file"
+            raise DataDirError(f"data dir {root} {what}, not a folder; give --data-dir a folder path")
+    if not writable:
+        return
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=root) as probe:
+            probe.write(b"osgd")
+            probe.flush()
+            os.fsync(probe.fileno())
+    except OSError as error:
+        raise DataDirError(
+            f"data dir {root} is not writable ({error.strerror or error}); "
+            + _remedy(error)
+        ) from error
+
+
+def _remedy(error: OSError) -> str:
+    """What a person can do about an ``OSError`` met while writing the data dir."""
+    if error.errno == errno.ENOSPC:
+        return "free some space there or give --data-dir a folder on a disk with room"
+    if error.errno == errno.EROFS:
+        return "the file system is read-only: give --data-dir a writable folder"
+    return "give --data-dir a folder you can write to, or fix the folder's permissions"
+
+
+def write_problem(error: OSError) -> str:
+    """One line for an ``OSError`` met while writing shards or manifests: what failed and what to do."""
+    where = f"{error.filename}: " if error.filename else ""
+    return f"cannot write {where}{error.strerror or error}; {_remedy(error)}"
 
 
 class ShardStore:
@@ -231,7 +379,7 @@ class ShardStore:
         data = table_to_parquet_bytes(table, table_name, key)
         digest = hashlib.sha256(data).hexdigest()
         atomic_write_bytes(self.shard_path(table_name, key), data)
-        record = {"item": item_id, "rows": table.num_rows, "sha256": digest}
+        record = {"item": item_id, "key": key, "rows": table.num_rows, "sha256": digest}
         atomic_write_bytes(self.checksum_path(table_name, key), (canonical_json(record) + "\n").encode())
         return ShardRecord(table_name, key, item_id, table.num_rows, digest)
 
@@ -241,6 +389,8 @@ class ShardStore:
 
         ``flock`` locks work between processes of one machine and, on NFSv4
         and most cluster file systems, between machines sharing the folder.
+        The lock file (``<table>/.locks/<key>.lock``) is removed as the lock
+        is let go, so lock files do not pile up.
 
         Parameters
         ----------
@@ -255,16 +405,37 @@ class ShardStore:
         """
         lock_dir = self.root / table / ".locks"
         lock_dir.mkdir(parents=True, exist_ok=True)
-        with open(lock_dir / f"{key}.lock", "a+") as handle:
-            try:
-                fcntl.flock(handle.fileno(), fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                yield False
-                return
-            try:
-                yield True
-            finally:
-                fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+        path = lock_dir / f"{key}.lock"
+        handle = _acquire(path, wait)
+        if handle is None:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            # Unlinked while still held: a waiter that wakes up on this file sees it has no name.
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+            os.close(handle)
+
+    def clean_leftovers(self) -> tuple[int, int]:
+        """Remove what killed processes left behind: temporary files and lock files.
+
+        Only files no live process holds are removed, so this is safe while
+        other runs use the data dir.
+
+        Returns
+        -------
+        temporaries, locks : int
+            How many of each were removed.
+        """
+        if not self.root.is_dir():
+            return 0, 0
+        pattern = f".*{TEMPORARY_SUFFIX}"
+        temporaries = [*self.root.glob(pattern), *self.root.glob(f"*/{pattern}"), *self.root.glob(f"*/*/{pattern}")]
+        removed = sum(_remove_if_unheld(path) for path in temporaries)
+        locks = sum(_remove_if_unheld(path) for path in self.root.glob("*/.locks/*.lock"))
+        return removed, locks
 
     # -- reading and verifying ---------------------------------------------
     def verify(self, table: str, key: str, expected_sha256: str | None = None) -> ShardRecord:
@@ -291,11 +462,17 @@ class ShardStore:
             recorded, rows, item_id = str(record["sha256"]), int(record["rows"]), str(record["item"])
         except (ValueError, KeyError, TypeError) as error:
             raise ShardError(f"{checksum_path}: unreadable checksum file ({error})") from error
+        recorded_key = str(record.get("key", key))
+        if recorded_key != key:
+            raise ShardError(f"{checksum_path}: the checksum file of shard {recorded_key[:12]}, not of {key[:12]}")
         actual = file_sha256(path)
         if actual != recorded:
             raise ShardError(f"{path}: checksum {actual[:12]} disagrees with recorded {recorded[:12]}")
         if expected_sha256 is not None and actual != expected_sha256:
             raise ShardError(f"{path}: checksum {actual[:12]} disagrees with the manifest's {expected_sha256[:12]}")
+        stored = stored_key(path)
+        if stored != key:
+            raise ShardError(f"{path}: holds the shard of key {stored[:12] or '(none)'}, not of its file name")
         return ShardRecord(table, key, item_id, rows, actual)
 
     def is_done(self, table: str, key: str, expected_sha256: str | None = None) -> bool:

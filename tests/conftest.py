@@ -7,9 +7,16 @@ from pathlib import Path
 
 import pytest
 
+from osgd.kernels import pin_kernels
+
+# Before anything imports numpy: the kernels the osgd command pins, so that
+# what the tests build in this process and in the processes they start is
+# what `osgd` builds (osgd/kernels.py).
+pin_kernels()
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from helpers import OSGD_MODELS
+from helpers import OSGD_MODELS  # noqa: E402
 
 
 @pytest.fixture

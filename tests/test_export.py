@@ -12,7 +12,7 @@ from osgd.samples.encoding import decode_depth
 from osgd.samples.export import export
 from osgd.samples.projection import rectangles_from_corners, wrap_half_turn
 from osgd.samples.reader import iter_samples
-from osgd.samples.stage import SamplesStage, SamplesStageParams
+from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload
 from osgd.stage import WorkItem
 from osgd.store import ShardStore
 from osgd.taxonomy import CATEGORIES, TASK_FILE_STEM, TASKS
@@ -24,7 +24,7 @@ def samples_store(tmp_path_factory) -> ShardStore:
     keys = write_fixture_inputs(store)
     params = SamplesStageParams(renderer="embree", image_width=256, image_height=212, fx=183.0, fy=183.0,
                                 test_fraction=0.5)
-    item = WorkItem("samples_scenes_0000", {"params": params.key_dict(), "seed": 0, "scenes_item": "s"},
+    item = WorkItem("samples_scenes_0000", sample_payload(params.key_dict(), 0, "s"),
                     {table: tuple(values) for table, values in keys.items()})
     store.write("samples", "e" * 64, "samples_scenes_0000", SamplesStage().build(item, store).table)
     return store

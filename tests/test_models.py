@@ -423,3 +423,103 @@ def test_pictures_are_written(tmp_path):
     assert (tmp_path / "one.png").stat().st_size > 5000 and (tmp_path / "all.png").stat().st_size > 5000
     with pytest.raises(KeyError, match="no model"):
         show_model(store, "0" * 16, tmp_path / "none.png")
+
+
+# -- caches that cannot lie, errors a person can act on (issue #14) --------------------------
+
+
+def _box_mesh(length: float) -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=[length, 0.03, 0.02])
+
+
+def _flip_a_byte(path, offset: int) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("damage", ["truncated", "flipped", "altered", "another mesh's file", "older format"])
+def test_a_bad_cached_decomposition_is_recomputed_with_a_warning(tmp_path, damage):
+    box, other = _box_mesh(0.2), _box_mesh(0.25)
+    fresh = decomposition.decompose(box.vertices, box.faces, "hull", tmp_path)
+    (path,) = tmp_path.glob("*.npz")
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif damage == "flipped":  # inside the first part's vertices
+        _flip_a_byte(path, path.read_bytes().index(b"vertices_0") + 200)
+    elif damage == "altered":  # a valid archive with its own key, and other numbers
+        with np.load(path) as data:
+            arrays = {name: data[name] for name in data.files}
+        arrays["vertices_0"] = arrays["vertices_0"] * 1.01
+        np.savez(path, **arrays)
+    elif damage == "another mesh's file":
+        decomposition.decompose(other.vertices, other.faces, "hull", tmp_path / "other")
+        path.write_bytes(next((tmp_path / "other").glob("*.npz")).read_bytes())
+    else:
+        np.savez(path, count=np.array(1), vertices_0=other.vertices, faces_0=other.faces)
+    again = decomposition.decompose(box.vertices, box.faces, "hull", tmp_path)
+    assert not again.cached and len(again.warnings) == 1
+    assert str(path) in again.warnings[0] and "recomputed" in again.warnings[0]
+    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+               for a, b in zip(again.parts, fresh.parts, strict=True))
+    # The file was rewritten: the next call trusts it.
+    third = decomposition.decompose(box.vertices, box.faces, "hull", tmp_path)
+    assert third.cached and not third.warnings
+
+
+def test_a_corrupt_cache_does_not_fail_the_models_stage_nor_change_its_shard(tmp_path):
+    stage = ModelsStage()
+    params = stage.Params(procedural_per_category=1, decomposition="hull")
+    shards = [s for s in stage.planned(params, 0, {}) if s.item.item_id == "procedural/hammer_00"]
+    store = ShardStore(tmp_path)
+    first = run_stage(stage, shards, store)
+    shard_bytes = store.shard_path("models", shards[0].key).read_bytes()
+    (cached,) = (tmp_path / "cache" / "decompositions").glob("*.npz")
+    cached.write_bytes(cached.read_bytes()[:100])
+    again = run_stage(stage, shards, store, force=True)
+    assert first.ok and again.ok and again.built == 1
+    assert "recomputed" in again.warnings["procedural/hammer_00"][0]
+    # The warning is about this build, not the model: it is neither a kept note nor in the shard.
+    assert "procedural/hammer_00" not in again.notes
+    assert store.shard_path("models", shards[0].key).read_bytes() == shard_bytes
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ('category = "drill"\nlength = 0.3\n', "category = 'drill': unknown category 'drill'; expected one of ['knife'"),
+    ('category = "knife"\nlength = -0.2\n', "length = -0.2: Input should be greater than 0"),
+    ('category = "knife"\nlength = 0.2\nscale = 0.001\n',
+     "give exactly one of length (real longest extent, m) and scale (mesh units to metres)"),
+    ('category = "knife"\nlenght = 0.2\n', "lenght = 0.2: unknown key; see docs/models.md"),
+])
+def test_sidecar_mistakes_are_one_line_naming_file_key_and_value(tmp_path, text, expected):
+    from osgd.models.user import SidecarError, read_sidecar  # noqa: PLC0415
+
+    path = tmp_path / "tool.toml"
+    path.write_text(text)
+    with pytest.raises(SidecarError) as error:
+        read_sidecar(path)
+    assert error.value.file == str(path) and expected in error.value.cause
+    assert str(error.value).startswith(f"{path}: ") and "\n" not in str(error.value)
+
+
+def test_malformed_osgd_inputs_name_the_file(tmp_path):
+    from osgd.errors import InputError  # noqa: PLC0415
+
+    folder = tmp_path / "hammer_007"
+    (folder / "model").mkdir(parents=True)
+    (folder / "model" / "model_normalized.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n")
+    with pytest.raises(InputError, match=r"model_normalized\.obj: trimesh cannot read it \(IndexError"):
+        load_osgd_model(folder)
+    (folder / "model" / "model_normalized.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (folder / "annotations").mkdir()
+    (folder / "annotations" / "hammer.npy").write_bytes(b"not numpy")
+    with pytest.raises(InputError, match=r"hammer\.npy: not a NumPy \.npy array"):
+        load_osgd_model(folder)
+    (folder / "annotations" / "hammer.npy").unlink()
+    np.save(folder / "annotations" / "hammering.npy", np.zeros((2, 3)))
+    with pytest.raises(InputError, match=r"hammering\.npy: annotation file stem 'hammering' names no task"):
+        load_osgd_model(folder)
+    wrong = tmp_path / "drill_001"
+    folder.rename(wrong)
+    with pytest.raises(InputError, match=r"drill_001: model folder 'drill_001' is not <category>_<number>"):
+        load_osgd_model(wrong)

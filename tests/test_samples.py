@@ -24,7 +24,7 @@ from osgd.samples.projection import (
 )
 from osgd.samples.reader import decode_row
 from osgd.samples.renderer import RenderObject, available_backends, make_renderer
-from osgd.samples.stage import SamplesStage, SamplesStageParams, split_of
+from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload, split_of
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
 from osgd.stage import PlannedShard, WorkItem
 from osgd.store import ShardStore, table_to_parquet_bytes
@@ -49,8 +49,8 @@ def fixture_scene() -> tuple[list[RenderObject], CameraPose]:
 
 
 def item_for(keys: dict[str, list[str]], params: SamplesStageParams, seed: int = 0) -> WorkItem:
-    return WorkItem("samples_scenes_0000", {"params": params.key_dict(), "seed": seed, "scenes_item": "scenes_0000"},
-                    {table: tuple(values) for table, values in keys.items()})
+    payload = sample_payload(params.key_dict(), seed, "scenes_0000")
+    return WorkItem("samples_scenes_0000", payload, {table: tuple(values) for table, values in keys.items()})
 
 
 @pytest.fixture(scope="module")

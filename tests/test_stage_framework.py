@@ -3,10 +3,14 @@ corruption, executors, failures, configs, manifests."""
 
 from __future__ import annotations
 
+import fcntl
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -18,7 +22,7 @@ from toy_stage import ToyParams, ToyStage
 from osgd.config import ConfigError, build_config
 from osgd.executor import ProcessPoolExecutor, SerialExecutor
 from osgd.stage import run_stage
-from osgd.store import ShardStore, file_sha256, shard_key
+from osgd.store import ShardError, ShardStore, file_sha256, shard_key
 
 TESTS = Path(__file__).resolve().parent
 
@@ -303,3 +307,121 @@ def test_a_shard_another_process_is_building_is_passed_over_then_waited_for(tmp_
     assert others_done.is_set()
     assert order[-1] == busy.item.item_id  # built after the lock was let go, not first
     assert report.built == len(shards) and report.ok
+
+
+# -- caches and leftovers that cannot lie (issue #14) ---------------------------
+
+
+def test_a_shard_copied_over_another_is_caught_by_the_key_it_holds(tmp_path: Path) -> None:
+    _, shards = _run(tmp_path)
+    reference = _files(tmp_path)
+    store = ShardStore(tmp_path)
+    source, target = shards[0].key, shards[1].key
+    # Bytes and checksum file copied: the checksum file names the other key.
+    for path in (store.shard_path, store.checksum_path):
+        path("checks", target).write_bytes(path("checks", source).read_bytes())
+    with pytest.raises(ShardError, match="checksum file of shard"):
+        store.verify("checks", target)
+    # A checksum file made to fit the copied bytes: the key inside the shard gives it away.
+    record = json.loads(store.checksum_path("checks", source).read_text())
+    store.checksum_path("checks", target).write_text(json.dumps({**record, "key": target}))
+    with pytest.raises(ShardError, match=f"holds the shard of key {source[:12]}, not of its file name"):
+        store.verify("checks", target)
+    # With no manifest to compare with, a run still rebuilds it, and nothing else.
+    report, _ = _run(tmp_path)
+    assert report.built == 1 and "holds the shard of key" in report.rebuilt[0]
+    assert _files(tmp_path) == reference
+
+
+def _leftover(folder: Path, name: str) -> Path:
+    """A temporary file as a write killed before its rename leaves it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=folder)
+    os.write(handle, b"half a shard")
+    os.close(handle)
+    return Path(temporary)
+
+
+def test_leftover_temporary_and_lock_files_are_removed_but_held_ones_kept(tmp_path: Path) -> None:
+    _, shards = _run(tmp_path)
+    store = ShardStore(tmp_path)
+    folder = tmp_path / "checks"
+    assert not list((folder / ".locks").iterdir()), "lock files are removed as their lock is let go"
+    stale = [_leftover(folder, f"{shards[0].key}.parquet"), _leftover(tmp_path / "manifests", "toy.json")]
+    stale.append(_leftover(tmp_path / "cache" / "decompositions", "0" * 64 + ".npz"))
+    stale_locks = [folder / ".locks" / f"{shard.key}.lock" for shard in shards[:3]]
+    for path in stale_locks:
+        path.touch()
+    # A write in progress in another process: its temporary file is flock-ed.
+    busy = _leftover(folder, f"{shards[1].key}.parquet")
+    with open(busy, "rb") as writer, store.lock("checks", shards[3].key) as held:
+        fcntl.flock(writer.fileno(), fcntl.LOCK_EX)
+        assert held
+        assert store.clean_leftovers() == (3, 3)
+        assert busy.exists() and (folder / ".locks" / f"{shards[3].key}.lock").exists()
+    assert not any(path.exists() for path in stale + stale_locks)
+    assert _files(tmp_path)  # the shards themselves are untouched
+    assert all(store.is_done("checks", shard.key) for shard in shards)
+
+
+def _someone_waits_for_a_lock() -> bool:
+    try:
+        return "-> FLOCK" in Path("/proc/locks").read_text()
+    except OSError:  # no /proc: carry on without knowing
+        return True
+
+
+def test_a_removed_lock_file_still_keeps_the_shard_exclusive(tmp_path: Path) -> None:
+    """A waiter that wakes up on the file its holder removed must lock the new file, not share it."""
+    import threading  # noqa: PLC0415
+
+    store = ShardStore(tmp_path)
+    waiting, acquired, release = threading.Event(), threading.Event(), threading.Event()
+
+    def waiter() -> None:
+        waiting.set()
+        with store.lock("checks", "k" * 64) as held:
+            assert held
+            acquired.set()
+            release.wait(timeout=60)
+
+    with store.lock("checks", "k" * 64) as held:
+        assert held
+        thread = threading.Thread(target=waiter)
+        thread.start()
+        waiting.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while not _someone_waits_for_a_lock() and time.monotonic() < deadline:
+            time.sleep(0.01)  # until the waiter sleeps in flock on the file about to be removed
+    assert acquired.wait(timeout=30)
+    with store.lock("checks", "k" * 64, wait=False) as third:
+        assert not third, "two holders of one shard's lock"
+    release.set()
+    thread.join()
+    assert not list((tmp_path / "checks" / ".locks").iterdir())
+
+
+def test_config_integers_take_no_string_and_no_boolean() -> None:
+    for value in ("4", True, 4.5):
+        with pytest.raises(ConfigError, match=rf"p\.toml: \[toy\] rows = {re.escape(repr(value))}: .*integer"):
+            build_config({"toy": {"rows": value}}, {"toy": ToyParams}, origin="p.toml")
+    with pytest.raises(ConfigError, match=r"\[toy\] scale = 'big': .*number"):
+        build_config({"toy": {"scale": "big"}}, {"toy": ToyParams}, origin="p.toml")
+    with pytest.raises(ConfigError, match=r"\[pipeline\] seed = '1'"):
+        build_config({"pipeline": {"seed": "1"}}, {"toy": ToyParams}, origin="p.toml")
+    config = build_config({"toy": {"rows": 4, "scale": 2}}, {"toy": ToyParams}, origin="p.toml")
+    assert config.params["toy"].rows == 4 and config.params["toy"].scale == 2.0  # an integer is a number
+
+
+def test_an_unknown_key_lists_the_allowed_keys_and_an_override_is_blamed_for_its_error() -> None:
+    with pytest.raises(ConfigError) as error:
+        build_config({"toy": {"colour": 1}}, {"toy": ToyParams}, origin="p.toml")
+    assert str(error.value) == (
+        "p.toml: [toy] colour = 1: unknown key; allowed keys: items, rows, scale, fail_item, workdir"
+    )
+    with pytest.raises(ConfigError) as error:
+        build_config({"toy": {"rows": 5}}, {"toy": ToyParams}, origin="p.toml", overrides=["toy.rows=many"])
+    assert str(error.value).startswith("override 'toy.rows=many': [toy] rows = 'many': ")
+    assert "p.toml" not in str(error.value)
+    with pytest.raises(ConfigError, match=r"^override 'toys.rows=3': unknown section \[toys\]"):
+        build_config({}, {"toy": ToyParams}, origin="p.toml", overrides=["toys.rows=3"])

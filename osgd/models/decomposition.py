@@ -24,7 +24,11 @@ watertight procedural meshes alone.
 Cache: ``<cache_dir>/<key>.npz`` where ``key`` is the sha256 of the mesh's
 vertex and face bytes, the coacd version and *every* coacd parameter
 (REFERENCE section 5: a cache keyed on vertices only serves stale results
-when parameters change).
+when parameters change). Each file holds its own key and a sha256 of its
+parts, and is used only when both check out: a truncated or altered file,
+or a valid file of another mesh copied under this name, is recomputed and
+overwritten, with a warning (:attr:`Decomposition.warnings`), never trusted
+and never fatal.
 """
 
 from __future__ import annotations
@@ -147,12 +151,16 @@ class Decomposition:
         Fallbacks taken.
     cached : bool
         Whether the parts came from the cache.
+    warnings : list of str
+        A cache file that was bad and recomputed. Not part of the result:
+        the same mesh gives the same parts whatever the cache held.
     """
 
     parts: list[tuple[np.ndarray, np.ndarray]]
     description: dict[str, Any]
     notes: list[str]
     cached: bool = False
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
 
 def _hull_parts(vertices: np.ndarray, faces: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -178,26 +186,46 @@ def _run_coacd(
     return parts
 
 
-def _save(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+def _parts_digest(parts: list[tuple[np.ndarray, np.ndarray]]) -> str:
+    """sha256 over the shapes and bytes of every part, in order."""
+    digest = hashlib.sha256()
+    for part_vertices, part_faces in parts:
+        for array in (np.ascontiguousarray(part_vertices, np.float64), np.ascontiguousarray(part_faces, np.int64)):
+            digest.update(repr(array.shape).encode())
+            digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def _save(path: Path, key: str, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
     arrays: dict[str, np.ndarray] = {}
     for index, (part_vertices, part_faces) in enumerate(parts):
         arrays[f"vertices_{index}"] = part_vertices
         arrays[f"faces_{index}"] = part_faces
     buffer = io.BytesIO()
-    np.savez(buffer, count=np.array(len(parts)), **arrays)
+    np.savez(buffer, key=np.array(key), digest=np.array(_parts_digest(parts)), count=np.array(len(parts)), **arrays)
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def _load(path: Path) -> list[tuple[np.ndarray, np.ndarray]] | None:
+def _load(path: Path, key: str) -> tuple[list[tuple[np.ndarray, np.ndarray]] | None, str]:
+    """The cached parts, or None and what is wrong with the file."""
     try:
-        with np.load(path) as data:
-            count = int(data["count"])
-            return [
-                (data[f"vertices_{i}"].astype(np.float64), data[f"faces_{i}"].astype(np.int64)) for i in range(count)
+        with np.load(path, allow_pickle=False) as data:
+            if "key" not in data.files:
+                return None, "is of an older format, without its key"
+            stored_key, stored_digest = str(data["key"]), str(data["digest"])
+            parts = [
+                (data[f"vertices_{i}"].astype(np.float64), data[f"faces_{i}"].astype(np.int64))
+                for i in range(int(data["count"]))
             ]
-    except (OSError, KeyError, ValueError) as error:
-        log.warning("%s: unreadable cached decomposition (%s); recomputing", path, error)
-        return None
+    except Exception as error:  # zipfile.BadZipFile, zlib.error, KeyError, ValueError, OSError...: all "unreadable"
+        return None, f"is unreadable ({type(error).__name__}: {error})"
+    if stored_key != key:
+        return None, f"holds the decomposition of another mesh or parameters (key {stored_key[:12]})"
+    if stored_digest != _parts_digest(parts):
+        return None, "does not match its checksum"
+    if not parts:
+        return None, "holds no part"
+    return parts, ""
 
 
 def decompose(
@@ -236,10 +264,13 @@ def decompose(
         description["coacd_version"] = _coacd_version()
     key = cache_key(vertices, faces, parameters)
     path = cache_dir / f"{key}.npz" if cache_dir is not None else None
+    warnings: list[str] = []
     if path is not None and path.exists():
-        parts = _load(path)
+        parts, problem = _load(path, key)
         if parts:
             return Decomposition(parts, description, [], cached=True)
+        warnings.append(f"the cached decomposition {path} {problem}; recomputed it")
+        log.info("%s", warnings[-1])
     notes: list[str] = []
     if parameters is None:
         parts = _hull_parts(vertices, faces)
@@ -255,8 +286,10 @@ def decompose(
             description = {"method": "convex_hull", "preset": preset, "fallback_from": description}
             parts = _hull_parts(vertices, faces)
     if path is not None and not notes:
-        _save(path, parts)
-    return Decomposition(parts, description, notes)
+        _save(path, key, parts)
+    elif path is not None:  # a fallback is not cached: nor may a bad file stay
+        path.unlink(missing_ok=True)
+    return Decomposition(parts, description, notes, warnings=warnings)
 
 
 def description_json(description: dict[str, Any]) -> str:

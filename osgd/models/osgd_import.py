@@ -11,10 +11,18 @@ annotation file is a float array of shape (2N, 3): rows 2i and 2i + 1 are the
 two finger positions of pair i, in Blender's Z-up frame, while the OBJ
 vertices are Y-up: a point (x, y, z) of an annotation file is (x, z, -y) in
 the OBJ's coordinates (REFERENCE section 2).
+
+Some of the authors' OBJ files name objects with a trailing backslash
+(``o \\X2\\9524628A\\X0\\``, an IFC-style escape), which trimesh reads as a
+line continuation, gluing the next vertex onto the name; the loader drops
+the trailing backslashes of ``o`` and ``g`` lines before trimesh reads the
+text. A file that still cannot be read, or a malformed annotation file,
+raises :class:`osgd.errors.InputError` naming the file and the cause.
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import re
 from dataclasses import dataclass, field
@@ -23,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from osgd.errors import InputError
 from osgd.taxonomy import CATEGORIES, task_from_file_stem
 
 log = logging.getLogger(__name__)
@@ -33,6 +42,8 @@ MESH_PATH = Path("model") / "model_normalized.obj"
 ANNOTATIONS_DIR = Path("annotations")
 
 _FOLDER_NAME = re.compile(r"^(?P<category>[a-z]+)_(?P<number>\d+)$")
+#: An ``o`` or ``g`` line whose name ends in backslashes (kept: the name, the line end).
+_NAME_WITH_BACKSLASH = re.compile(rb"^([ \t]*[og][ \t][^\r\n]*?)\\+([ \t]*\r?)$", re.MULTILINE)
 
 
 @dataclass
@@ -121,10 +132,16 @@ def blender_to_obj(points: np.ndarray) -> np.ndarray:
 
 
 def list_model_folders(models_dir: Path) -> list[Path]:
-    """Model folders of an OSGD models dir (those holding ``model/model_normalized.obj``), sorted by name."""
+    """Model folders of an OSGD models dir (those holding ``model/model_normalized.obj``), sorted by name.
+
+    Raises
+    ------
+    InputError
+        If the folder does not exist.
+    """
     models_dir = Path(models_dir)
     if not models_dir.is_dir():
-        raise FileNotFoundError(f"{models_dir}: OSGD models dir does not exist")
+        raise InputError(models_dir, "no such folder; set [models] osgd_dir to a folder in the OSGD layout")
     return sorted(path for path in models_dir.iterdir() if (path / MESH_PATH).is_file())
 
 
@@ -146,19 +163,18 @@ def read_annotations(model_dir: Path) -> tuple[list[AnnotatedPair], list[str]]:
 
     Raises
     ------
-    ValueError
+    InputError
         For a file that is not an (N, 3) float array or names no task.
     """
     pairs: list[AnnotatedPair] = []
     notes: list[str] = []
     for path in sorted((Path(model_dir) / ANNOTATIONS_DIR).glob("*.npy")):
         relative = f"{ANNOTATIONS_DIR.as_posix()}/{path.name}"
-        task = task_from_file_stem(path.stem)
-        points = np.load(path, allow_pickle=False)
-        if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
-            raise ValueError(
-                f"{path}: expected an (N, 3) float array of finger positions, got {points.shape} {points.dtype}"
-            )
+        try:
+            task = task_from_file_stem(path.stem)
+        except ValueError as error:
+            raise InputError(path, str(error)) from error
+        points = _load_points(path)
         if len(points) % 2:
             notes.append(f"{relative}: odd number of points ({len(points)}); dropped the last, which has no partner")
             points = points[:-1]
@@ -168,6 +184,45 @@ def read_annotations(model_dir: Path) -> tuple[list[AnnotatedPair], list[str]]:
         mapped = blender_to_obj(points).reshape(-1, 2, 3)[finite]
         pairs.extend(AnnotatedPair(task, pair[0], pair[1], relative) for pair in mapped)
     return pairs, notes
+
+
+def _load_points(path: Path) -> np.ndarray:
+    """An annotation file's (N, 3) array.
+
+    Raises
+    ------
+    InputError
+    """
+    try:
+        points = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        raise InputError(path, f"not a NumPy .npy array ({error})") from error
+    if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
+        raise InputError(
+            path, f"expected an (N, 3) float array of finger positions, got shape {points.shape} {points.dtype}"
+        )
+    return points
+
+
+def read_obj(mesh_path: Path) -> trimesh.Trimesh:
+    """An OBJ file as one unprocessed Trimesh, object names with trailing backslashes read as names.
+
+    Raises
+    ------
+    InputError
+        If trimesh cannot read the file or finds no triangle mesh in it.
+    """
+    data = _NAME_WITH_BACKSLASH.sub(rb"\1\2", Path(mesh_path).read_bytes())
+    # The OBJ names a material library that is not shipped; without materials
+    # trimesh logs that and moves on. process=False keeps the raw vertices for validation.
+    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh", process=False, skip_materials=True)
+    except Exception as error:  # a third-party parser: any exception means "cannot read this file"
+        raise InputError(mesh_path, f"trimesh cannot read it ({type(error).__name__}: {error})") from error
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InputError(mesh_path, "trimesh read no triangle mesh from it")
+    return mesh
 
 
 def load_osgd_model(model_dir: str | Path) -> OsgdModel:
@@ -189,21 +244,19 @@ def load_osgd_model(model_dir: str | Path) -> OsgdModel:
 
     Raises
     ------
-    FileNotFoundError
-        If the folder has no ``model/model_normalized.obj``.
-    ValueError
-        If the folder name names no category or an annotation file is malformed.
+    InputError
+        If the folder name names no category, the folder has no
+        ``model/model_normalized.obj``, trimesh cannot read it, or an
+        annotation file is malformed.
     """
     model_dir = Path(model_dir)
-    category = category_from_folder(model_dir.name)
+    try:
+        category = category_from_folder(model_dir.name)
+    except ValueError as error:
+        raise InputError(model_dir, str(error)) from error
     mesh_path = model_dir / MESH_PATH
     if not mesh_path.is_file():
-        raise FileNotFoundError(f"{mesh_path}: no mesh")
-    # The OBJ names a material library that is not shipped; without materials
-    # trimesh logs that and moves on. process=False keeps the raw vertices for validation.
-    logging.getLogger("trimesh").setLevel(logging.ERROR)
-    mesh = trimesh.load(mesh_path, force="mesh", process=False, skip_materials=True)
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"{mesh_path}: trimesh read no triangle mesh from it")
+        raise InputError(mesh_path, "no mesh (an OSGD model folder holds model/model_normalized.obj)")
+    mesh = read_obj(mesh_path)
     pairs, notes = read_annotations(model_dir)
     return OsgdModel(model_dir.name, category, mesh, pairs, notes)

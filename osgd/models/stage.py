@@ -17,9 +17,12 @@ never changes the others), decomposed into convex parts (cached,
 (:mod:`osgd.models.mass`, :mod:`osgd.models.categories`).
 
 A model whose mesh is unusable (empty, flat, far off scale...) gives a note
-and an empty shard; a mistake in what a person wrote (a missing or invalid
-sidecar, a malformed annotation file, a source file changed since planning)
-fails its item with a message naming the file.
+and an empty shard; a file that cannot be read (an OBJ trimesh cannot parse)
+or a mistake in what a person wrote (a missing or invalid sidecar, a
+malformed annotation file, a folder name that names no category, a source
+file changed since planning) fails its item with an
+:class:`osgd.errors.InputError` naming the file and the cause. Either way the
+other models build, and so do the later stages, without it.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import pyarrow as pa
 import trimesh
 from pydantic import Field
 
+from osgd.errors import InputError
 from osgd.models import decomposition, osgd_import, procedural, user
 from osgd.models.categories import category_properties, draw_length
 from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
@@ -104,7 +108,15 @@ def _check_hashes(expected: Mapping[str, str], base: Path, item_id: str) -> None
         path = base / relative
         actual = file_sha256(path) if path.is_file() else "missing"
         if actual != digest:
-            raise RuntimeError(f"{path}: changed since planning (item {item_id}); run the stage again")
+            raise InputError(path, f"changed since planning (item {item_id}); run the stage again")
+
+
+def _folder_category(folder: Path) -> str | None:
+    """The category an OSGD folder names; None for a bad name, which fails that item alone at build time."""
+    try:
+        return osgd_import.category_from_folder(folder.name)
+    except ValueError:
+        return None
 
 
 @dataclass
@@ -147,7 +159,7 @@ class ModelsStage(Stage):
                 payload = {
                     **common,
                     "source": "osgd",
-                    "category": osgd_import.category_from_folder(folder.name),
+                    "category": _folder_category(folder),
                     "files": _hashes(osgd_import.source_files(folder), folder),
                 }
                 items.append(ModelWorkItem(f"osgd/{folder.name}", payload, source_path=str(folder)))
@@ -199,10 +211,7 @@ class ModelsStage(Stage):
             mesh_path = location / payload["mesh"]
             sidecar_file = user.sidecar_path(mesh_path)
             sidecar = user.read_sidecar(sidecar_file)
-            try:
-                mesh, groups = user.load_user_mesh(mesh_path)
-            except ValueError as error:
-                raise ModelRejected(str(error)) from error
+            mesh, groups = user.load_user_mesh(mesh_path)
             face_parts = user.face_parts_from_regions(mesh, sidecar, groups, str(sidecar_file))
             pairs, notes = user.read_grasp_files(sidecar, location)
             return _SourceModel(
@@ -225,12 +234,15 @@ class ModelsStage(Stage):
     def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
         try:
             model = self._read_source(item)
-            row, notes = self._finish(model, item, store)
+            row, notes, warnings = self._finish(model, item, store)
         except ModelRejected as error:
             return BuildResult(empty_table("models"), [f"skipped: {error}"])
-        return BuildResult(pa.Table.from_pylist([row], schema=MODELS), notes)
+        return BuildResult(pa.Table.from_pylist([row], schema=MODELS), notes, warnings)
 
-    def _finish(self, model: _SourceModel, item: WorkItem, store: ShardStore) -> tuple[dict[str, Any], list[str]]:
+    def _finish(
+        self, model: _SourceModel, item: WorkItem, store: ShardStore
+    ) -> tuple[dict[str, Any], list[str], list[str]]:
+        """The row, its notes (kept, also in the provenance) and this build's warnings (a bad cache file)."""
         checked = check_mesh(model.mesh, model.face_parts, name=item.item_id)
         notes = [*model.notes, *checked.notes]
         mesh = checked.mesh
@@ -289,7 +301,7 @@ class ModelsStage(Stage):
             "annotated_pairs": [pair.as_row() for pair in pairs],
             "provenance": json.dumps(provenance, sort_keys=True),
         }
-        return row, notes
+        return row, notes, compound.warnings
 
     # -- reporting --------------------------------------------------------------------
     def summary(self, store: ShardStore, records: Sequence[ShardRecord]) -> str:

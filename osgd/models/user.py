@@ -31,21 +31,24 @@ from __future__ import annotations
 
 import json
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from osgd.errors import InputError
 from osgd.models.osgd_import import AnnotatedPair, blender_to_obj
+from osgd.models.validation import ModelRejected
 from osgd.taxonomy import CATEGORIES, PART_INDEX, PARTS, TASKS, UNKNOWN_PART, task_from_file_stem
 
 #: File name endings read as users' meshes.
 MESH_SUFFIXES: tuple[str, ...] = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
 
 
-class SidecarError(ValueError):
+class SidecarError(InputError):
     """A sidecar that cannot be used; the message names the file and the problem."""
 
 
@@ -146,12 +149,12 @@ def list_user_meshes(user_dir: Path) -> list[Path]:
 
     Raises
     ------
-    FileNotFoundError
+    InputError
         If the folder does not exist.
     """
     user_dir = Path(user_dir)
     if not user_dir.is_dir():
-        raise FileNotFoundError(f"{user_dir}: users' models dir does not exist")
+        raise InputError(user_dir, "no such folder; set [models] user_dir to a folder of meshes with sidecars")
     return sorted(path for path in user_dir.iterdir() if path.is_file() and path.suffix.lower() in MESH_SUFFIXES)
 
 
@@ -165,12 +168,21 @@ def parse_sidecar(text: str, origin: str = "<sidecar>") -> Sidecar:
     try:
         document = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
-        raise SidecarError(f"{origin}: not valid TOML: {error}") from error
+        raise SidecarError(origin, f"not valid TOML: {error}") from error
     try:
         return Sidecar(**document)
     except ValidationError as error:
-        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc']) or '(top)'}: {e['msg']}" for e in error.errors())
-        raise SidecarError(f"{origin}: {problems}") from error
+        raise SidecarError(origin, "; ".join(_problem(entry) for entry in error.errors())) from error
+
+
+def _problem(entry: Mapping[str, Any]) -> str:
+    """One pydantic error as ``key = value: rule`` (the rule alone for a rule across keys)."""
+    message = str(entry["msg"]).removeprefix("Value error, ")
+    if entry["type"] == "extra_forbidden":
+        message = "unknown key; see docs/models.md for the sidecar's keys"
+    if not entry["loc"]:
+        return message
+    return f"{'.'.join(str(part) for part in entry['loc'])} = {entry.get('input')!r}: {message}"
 
 
 def read_sidecar(path: Path) -> Sidecar:
@@ -178,13 +190,13 @@ def read_sidecar(path: Path) -> Sidecar:
 
     Raises
     ------
-    FileNotFoundError, SidecarError
+    InputError
+        Also a :class:`SidecarError`.
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(
-            f"{path}: no sidecar; every user mesh needs one naming at least its category "
-            "and length (see docs/models.md)"
+        raise InputError(
+            path, "no sidecar; every user mesh needs one naming at least its category and length (see docs/models.md)"
         )
     return parse_sidecar(path.read_text(), str(path))
 
@@ -218,11 +230,14 @@ def sidecar_to_toml(sidecar: Sidecar) -> str:
 
 def _load_with_groups(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.ndarray]]:
     """The mesh as one Trimesh, and the face indices of each named group/object."""
-    loaded = trimesh.load(mesh_path, process=False, skip_materials=True)
+    try:
+        loaded = trimesh.load(mesh_path, process=False, skip_materials=True)
+    except Exception as error:  # a third-party parser: any exception means "cannot read this file"
+        raise InputError(mesh_path, f"trimesh cannot read it ({type(error).__name__}: {error})") from error
     if isinstance(loaded, trimesh.Trimesh):
         return loaded, {}
     if not isinstance(loaded, trimesh.Scene) or not loaded.geometry:
-        raise ValueError(f"{mesh_path}: trimesh read no triangle mesh from it")
+        raise ModelRejected(f"{mesh_path}: trimesh read no triangle mesh from it")
     meshes, groups, start = [], {}, 0
     for name, geometry in loaded.geometry.items():
         if not isinstance(geometry, trimesh.Trimesh):
@@ -231,7 +246,7 @@ def _load_with_groups(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.nd
         groups[name] = np.arange(start, start + len(geometry.faces))
         start += len(geometry.faces)
     if not meshes:
-        raise ValueError(f"{mesh_path}: trimesh read no triangle mesh from it")
+        raise ModelRejected(f"{mesh_path}: trimesh read no triangle mesh from it")
     return trimesh.util.concatenate(meshes), groups
 
 
@@ -262,7 +277,7 @@ def face_parts_from_regions(
             for group in region.groups or []:
                 if group not in groups:
                     raise SidecarError(
-                        f"{origin}: part {region.part!r} names group {group!r}, but the mesh has "
+                        origin, f"part {region.part!r} names group {group!r}, but the mesh has "
                         f"{sorted(groups) or 'no groups'}"
                     )
                 inside[groups[group]] = True
@@ -275,21 +290,24 @@ def read_grasp_files(sidecar: Sidecar, base_dir: Path) -> tuple[list[AnnotatedPa
 
     Raises
     ------
-    FileNotFoundError, ValueError
+    InputError
     """
     pairs: list[AnnotatedPair] = []
     notes: list[str] = []
     for entry in sidecar.grasps:
         path = base_dir / entry.file
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: grasp file named in the sidecar does not exist")
-        points = np.load(path, allow_pickle=False)
+            raise InputError(path, "grasp file named in the sidecar does not exist")
+        try:
+            points = np.load(path, allow_pickle=False)
+            task = entry.task or task_from_file_stem(path.stem)
+        except (OSError, ValueError, EOFError) as error:
+            raise InputError(path, str(error)) from error
         if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"{path}: expected an (N, 3) array of finger positions, got shape {points.shape}")
+            raise InputError(path, f"expected an (N, 3) array of finger positions, got shape {points.shape}")
         if len(points) % 2:
             notes.append(f"{entry.file}: odd number of points ({len(points)}); dropped the last")
             points = points[:-1]
-        task = entry.task or task_from_file_stem(path.stem)
         points = blender_to_obj(points) if entry.frame == "blender" else np.asarray(points, np.float64)
         pairs.extend(AnnotatedPair(task, pair[0], pair[1], entry.file) for pair in points.reshape(-1, 2, 3))
     return pairs, notes
@@ -299,7 +317,7 @@ def grasp_file_paths(sidecar_file: Path) -> list[Path]:
     """The grasp files a sidecar names (empty when it does not parse: the build reports that)."""
     try:
         sidecar = read_sidecar(sidecar_file)
-    except (FileNotFoundError, SidecarError):
+    except InputError:
         return []
     return [sidecar_file.parent / entry.file for entry in sidecar.grasps]
 
@@ -309,10 +327,9 @@ def load_user_mesh(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.ndarr
 
     Raises
     ------
-    ValueError
-        If trimesh reads no triangle mesh from the file.
+    InputError
+        If trimesh cannot read the file (a failure: the file needs fixing).
+    ModelRejected
+        If trimesh reads it but finds no triangle mesh (an empty model: skipped).
     """
-    try:
-        return _load_with_groups(Path(mesh_path))
-    except (ValueError, IndexError, KeyError, OSError) as error:
-        raise ValueError(f"{mesh_path}: trimesh cannot read it ({error})") from error
+    return _load_with_groups(Path(mesh_path))

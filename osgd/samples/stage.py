@@ -22,6 +22,7 @@ a scene stays in its split whatever else changes.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 from collections import Counter
@@ -35,7 +36,7 @@ from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import KINECT_V2, CameraIntrinsics
-from osgd.gripper import PANDA
+from osgd.gripper import PANDA, Gripper
 from osgd.samples.boxes import silhouette_pixels, visible_boxes
 from osgd.samples.collision import pile_collider
 from osgd.samples.encoding import encode_depth, encode_mask
@@ -60,6 +61,22 @@ log = logging.getLogger(__name__)
 #: Mixed into every sample's seed so the samples stage draws differently
 #: from other stages seeded with the same pipeline seed.
 _STAGE_SALT = 0x5A3D1E
+
+
+def sample_payload(key_params: dict, seed: int, scenes_item: str) -> dict:
+    """The payload of the samples item of one scenes shard: all its samples depend on besides the shards.
+
+    The parameters (``renderer`` already resolved), the seed, the scenes
+    item, the camera's depth range and the gripper, which the build would
+    otherwise read from modules (``osgd.camera``, ``osgd.gripper``).
+    """
+    return {
+        "params": key_params,
+        "seed": int(seed),
+        "scenes_item": scenes_item,
+        "depth_range": [KINECT_V2.near, KINECT_V2.far],
+        "gripper": dataclasses.asdict(PANDA),
+    }
 
 
 class SamplesStageParams(StageParams):
@@ -112,8 +129,8 @@ class SamplesStageParams(StageParams):
     collision_tolerance: float = Field(
         0.001, ge=0, description="Gripper penetration into another object that still counts as free, m.")
 
-    def intrinsics(self) -> CameraIntrinsics:
-        """The camera intrinsics these parameters describe."""
+    def intrinsics(self, near: float = KINECT_V2.near, far: float = KINECT_V2.far) -> CameraIntrinsics:
+        """The camera intrinsics these parameters describe, with the given depth range (m)."""
         return CameraIntrinsics(
             width=self.image_width,
             height=self.image_height,
@@ -121,8 +138,8 @@ class SamplesStageParams(StageParams):
             fy=self.fy,
             cx=(self.image_width - 1) / 2 if self.cx is None else self.cx,
             cy=(self.image_height - 1) / 2 if self.cy is None else self.cy,
-            near=KINECT_V2.near,
-            far=KINECT_V2.far,
+            near=near,
+            far=far,
         )
 
     @model_validator(mode="after")
@@ -170,6 +187,8 @@ def render_sample(
     params: SamplesStageParams,
     seed: int,
     renderer: Renderer,
+    gripper: Gripper = PANDA,
+    depth_range: tuple[float, float] = (KINECT_V2.near, KINECT_V2.far),
 ) -> dict[str, Any]:
     """One row of the ``samples`` table.
 
@@ -186,13 +205,17 @@ def render_sample(
     seed : int
         The pipeline seed.
     renderer : Renderer
+    gripper : Gripper
+        The hand whose collisions and finger width the grasps are judged with.
+    depth_range : (float, float)
+        The camera's near and far limits, m: depth outside reads 0.
 
     Returns
     -------
     dict
         Keyed by the columns of ``osgd.schemas.SAMPLES``.
     """
-    intrinsics = params.intrinsics()
+    intrinsics = params.intrinsics(*depth_range)
     objects = list(scene["objects"])
     rng = sample_rng(seed, int(scene["scene_index"]), view)
     positions = np.array([obj["position"] for obj in objects], dtype=np.float64).reshape(-1, 3)
@@ -238,7 +261,7 @@ def render_sample(
 
     camera_rotation_inverse = pose.rotation.T
     sample_grasps = []
-    with pile_collider(models, objects, PANDA, params.collision_tolerance) as collider:
+    with pile_collider(models, objects, gripper, params.collision_tolerance) as collider:
         for index in kept_indices:
             obj = objects[index]
             grasps = stable_grasps.get(obj["model_id"])
@@ -266,7 +289,7 @@ def render_sample(
             kept = candidates[suppress(camera.positions[candidates], angles[candidates], params.nms_radius, free)]
             kept = np.sort(kept)
             chosen = camera.subset(kept)
-            rectangles = grasp_rectangles(chosen, intrinsics, PANDA.finger_width)
+            rectangles = grasp_rectangles(chosen, intrinsics, gripper.finger_width)
             quaternions = chosen.quaternions
             for row in range(len(chosen)):
                 sample_grasps.append({
@@ -372,18 +395,31 @@ class SamplesStage(Stage):
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
     ) -> list[WorkItem]:
+        """One item per scenes shard; the payload holds everything a sample depends on.
+
+        Besides the parameters and the seed: the renderer actually used
+        (``auto`` is resolved here, before planning, so two runs whose
+        ``auto`` picks differ never share keys), the camera's depth range and
+        the gripper, which the build would otherwise read from modules.
+        """
         assert isinstance(params, SamplesStageParams)
         shared = {table: tuple(sorted(shard.key for shard in upstream.get(table, ()))) for table in
                   ("models", "grasps", "checks")}
+        key_params = params.key_dict()
+        scenes = upstream.get("scenes", ())
+        if scenes:  # resolving auto may probe EGL: only when there is something to render
+            key_params["renderer"] = resolve_backend(params.renderer)
         items = []
-        for shard in upstream.get("scenes", ()):
-            payload = {"params": params.key_dict(), "seed": int(seed), "scenes_item": shard.item.item_id}
-            items.append(WorkItem(f"samples_{shard.item.item_id}", payload, {"scenes": (shard.key,), **shared}))
+        for shard in scenes:
+            items.append(WorkItem(f"samples_{shard.item.item_id}", sample_payload(key_params, seed, shard.item.item_id),
+                                  {"scenes": (shard.key,), **shared}))
         return items
 
     def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
         params = SamplesStageParams(**item.payload["params"])
         seed = int(item.payload["seed"])
+        gripper = Gripper(**item.payload["gripper"])
+        near, far = item.payload["depth_range"]
         scenes = store.read_many("scenes", list(item.inputs["scenes"])).to_pylist()
         model_ids = {obj["model_id"] for scene in scenes for obj in scene["objects"]}
         models_table = store.read_many("models", list(item.inputs.get("models", ())))
@@ -397,7 +433,7 @@ class SamplesStage(Stage):
         stable_grasps = load_stable_grasps(store, item.inputs, model_ids)
         renderer, notes = resolve_renderer(params.renderer)
         rows = [
-            render_sample(scene, view, models, stable_grasps, params, seed, renderer)
+            render_sample(scene, view, models, stable_grasps, params, seed, renderer, gripper, (near, far))
             for scene in scenes
             for view in range(params.views_per_scene)
         ]
@@ -429,6 +465,18 @@ class SamplesStage(Stage):
             "grasps per task: " + ", ".join(f"{task} {count}" for task, count in sorted(tasks.items())),
         ]
         return "\n".join(lines)
+
+
+def resolve_backend(name: str) -> str:
+    """The backend a ``renderer`` parameter names here: ``auto`` becomes the
+    first of egl, embree, tiny that works in this process (others unchanged).
+
+    Raises
+    ------
+    RuntimeError
+        If ``auto`` finds no working backend.
+    """
+    return make_renderer(name).name if name == "auto" else name
 
 
 def resolve_renderer(name: str) -> tuple[Renderer, list[str]]:
