@@ -79,6 +79,7 @@ def test_eval_under_the_lab_protocol(trained: tuple[Path, Path], tmp_path: Path)
         assert result.output.startswith(f"Algorithm [protocol: {protocol}]")
         documents[protocol] = json.loads(out.read_text())
         assert documents[protocol]["protocol"] == documents[protocol]["metrics"]["protocol"] == protocol
+        assert documents[protocol]["command"].startswith("togcrf ")  # the process's own command line
     assert documents["lab"]["metrics"]["Acc-T top1"] == documents["ours"]["metrics"]["Acc-T top1"]
 
 

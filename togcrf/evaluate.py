@@ -19,6 +19,8 @@ from __future__ import annotations
 import json
 import logging
 import math
+import shlex
+import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Annotated, Any
@@ -177,6 +179,11 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
+def command_line() -> str:
+    """The command this process runs, as a shell line (``togcrf ...``), for the JSON it writes."""
+    return shlex.join(["togcrf", *sys.argv[1:]])
+
+
 def write_json(path: Path, document: dict[str, Any]) -> None:
     """Write strict JSON (no NaN), creating the parent folder."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -323,7 +330,7 @@ def eval_command(
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     path = out if out is not None else Path(checkpoint).parent / EVAL_FILE
-    write_json(path, document)
+    write_json(path, {**document, "command": command_line()})
     typer.echo(format_table([(row_name(document), document["row"])], protocol=document_protocol(document)))
     metrics = document["metrics"]
     typer.echo(f"{metrics['images']} images, {metrics['rois']} RoIs judged for Acc-T; "

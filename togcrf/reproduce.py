@@ -38,7 +38,7 @@ from typing import Annotated, Any
 import torch
 import typer
 
-from togcrf.evaluate import EVAL_FILE, evaluate_checkpoint, format_table, row_name, write_json
+from togcrf.evaluate import EVAL_FILE, command_line, evaluate_checkpoint, format_table, row_name, write_json
 from togcrf.metrics import PROTOCOLS
 
 log = logging.getLogger(__name__)
@@ -189,14 +189,15 @@ def reproduce(
             document = evaluate_checkpoint(checkpoint, data_dir, pipeline=pipeline, split="test",
                                            device=eval_device, max_samples=scale.eval_max_samples,
                                            speed_images=speed_images, protocol=protocol)
-            write_json(run_dir / eval_file(protocol), document)
+            write_json(run_dir / eval_file(protocol), {**document, "command": command_line()})
             rows[protocol].append((row_name(document), document["row"]))
             log.info("%s, protocol %s: %s", model, protocol, document["row"])
     for protocol, protocol_rows in rows.items():
         suffix = "" if protocol == "ours" else f"-{protocol}"
         (out_dir / f"table2{suffix}.txt").write_text(format_table(protocol_rows, protocol) + "\n")
         write_json(out_dir / f"table2{suffix}.json", {
-            "data": str(data_dir), "pipeline": pipeline, "device": eval_device, "protocol": protocol,
+            "command": command_line(), "data": str(data_dir), "pipeline": pipeline, "device": eval_device,
+            "protocol": protocol,
             "scale": scale.__dict__, "rows": [{"name": name, **row} for name, row in protocol_rows]})
     table = format_table(rows["ours"], "ours")
     if "tog-crfs" in models:
