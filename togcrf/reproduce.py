@@ -66,7 +66,11 @@ class Scale:
         Linear learning-rate warm-up steps (``togcrf.train``); a small run
         must reach the full rate within its few steps.
     lr : float
-        Base learning rate of SGD.
+        Base learning rate.
+    optimizer, lr_schedule, weight_decay, clip_grad_norm, scale_jitter, val_samples, time_budget_minutes
+        As the ``togcrf.train.TrainConfig`` fields of those names.
+    model_options : tuple of (str, value) pairs
+        ``togcrf.model.ModelOptions`` overrides (a tuple, so that a scale is hashable and frozen).
     """
 
     backbone: str
