@@ -4,7 +4,7 @@
 ``metrics.csv`` (``togcrf.train``) and draws two panels: the total training
 loss and the grasp task loss (left, log scale), and the validation mAP,
 mAP-G and Acc-T top-1 (right, percent; only runs trained with
-``--val-samples``). Each run is one colour, labelled with its run dir's name.
+``--val-samples``). Each run is one colour, labelled with the last two parts of its run dir.
 """
 
 from __future__ import annotations
@@ -57,15 +57,16 @@ def draw_curves(run_dirs: list[Path], out: Path) -> Path:
     for index, run_dir in enumerate(run_dirs):
         curves = read_curves(run_dir)
         colour = f"C{index}"
+        name = "/".join(Path(run_dir).parts[-2:])  # run dirs are often OUT/<model>: keep OUT
         epochs = [epoch + 1 for epoch in curves.get("epoch", [])]
         for column, style in LOSS_LINES.items():
             if column in curves:
-                losses.plot(epochs, curves[column], style, color=colour, label=f"{Path(run_dir).name}: {column}")
+                losses.plot(epochs, curves[column], style, color=colour, label=f"{name}: {column}")
         for column, style in VALIDATION_LINES.items():
             values = curves.get(column, [])
             if values and not all(math.isnan(value) for value in values):
                 validation.plot(epochs, [100 * value for value in values], style, marker="o", markersize=3,
-                                color=colour, label=f"{Path(run_dir).name}: {column[4:]}")
+                                color=colour, label=f"{name}: {column[4:]}")
     losses.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", yscale="log", title="losses")
     validation.set(xlabel="epoch", ylabel="percent", ylim=(0, 100), title="held-out validation slice")
     for axes in (losses, validation):
