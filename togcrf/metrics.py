@@ -262,6 +262,15 @@ def box_iou(first: np.ndarray, second: np.ndarray, *, plus_one: bool = False) ->
 # --------------------------------------------------------------------------- average precision
 
 
+def _trivial_average_precision(scores: np.ndarray, ground_truth_count: int) -> float | None:
+    """NaN without ground truth, 0 without detections, else None (the curve decides)."""
+    if ground_truth_count <= 0:
+        return float("nan")
+    if len(scores) == 0:
+        return 0.0
+    return None
+
+
 def average_precision(scores: np.ndarray, true_positive: np.ndarray, ground_truth_count: int) -> float:
     """All-point interpolated average precision of one category.
 
@@ -278,10 +287,9 @@ def average_precision(scores: np.ndarray, true_positive: np.ndarray, ground_trut
     float
         In [0, 1]; NaN when there is no ground truth.
     """
-    if ground_truth_count <= 0:
-        return float("nan")
-    if len(scores) == 0:
-        return 0.0
+    trivial = _trivial_average_precision(scores, ground_truth_count)
+    if trivial is not None:
+        return trivial
     recall, precision = precision_recall(scores, true_positive, ground_truth_count)
     recall = np.concatenate([[0.0], recall, [recall[-1]]])
     precision = np.concatenate([[0.0], precision, [0.0]])
@@ -329,10 +337,9 @@ def average_precision_11_point(scores: np.ndarray, true_positive: np.ndarray, gr
     float
         In [0, 1]; NaN when there is no ground truth.
     """
-    if ground_truth_count <= 0:
-        return float("nan")
-    if len(scores) == 0:
-        return 0.0
+    trivial = _trivial_average_precision(scores, ground_truth_count)
+    if trivial is not None:
+        return trivial
     recall, precision = precision_recall(scores, true_positive, ground_truth_count)
     return float(sum(precision[recall >= threshold].max(initial=0.0) for threshold in ELEVEN_POINT_RECALLS) / 11)
 

@@ -307,12 +307,11 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
                              image_size=config.image_size, augment=config.augment, seed=config.seed,
                              max_samples=config.max_samples, scale_jitter=config.scale_jitter)
-    validation_samples = [dataset.read_sample(item) for item in range(len(dataset) - config.val_samples,
-                                                                        len(dataset))] if config.val_samples else []
-    if config.val_samples:
-        if config.val_samples >= len(dataset):
-            raise ValueError(f"--val-samples {config.val_samples}: the training split has only {len(dataset)}")
-        dataset.index = dataset.index[: len(dataset) - config.val_samples]
+    if config.val_samples and config.val_samples >= len(dataset):
+        raise ValueError(f"--val-samples {config.val_samples}: the training split has only {len(dataset)}")
+    kept = len(dataset) - config.val_samples
+    validation_samples = [dataset.read_sample(item) for item in range(kept, len(dataset))]
+    dataset.index = dataset.index[:kept]
     sampler = ShardGroupedSampler(dataset, seed=config.seed)
     loader = DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, collate_fn=collate,
                         num_workers=config.workers, pin_memory=device.type == "cuda")
