@@ -52,6 +52,9 @@ def test_eval_writes_the_table_row(trained: tuple[Path, Path], tmp_path: Path) -
         assert value is None or 0.0 <= value <= 1.0
     assert document["metrics"]["mAP-G"] <= document["metrics"]["mAP"]
     assert document["speed"]["fps"] > 0 and document["speed"]["device"] == "cpu"
+    # TOG-CRFs: the CRF's share of the time, a part of the whole
+    assert 0.0 < document["speed"]["crf_share"] < 1.0
+    assert 0.0 < document["speed"]["crf_seconds_per_image"] < 1.0 / document["speed"]["fps"]
     assert set(document["row"]) == set(TABLE_COLUMNS)
 
     # `table` prints rows side by side from run dirs or evaluation files.

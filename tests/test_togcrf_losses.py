@@ -23,6 +23,20 @@ def test_mining_keeps_every_positive_and_the_hardest_negatives_of_each_row():
         assert kept.min() >= dropped.max()
 
 
+def test_mining_never_takes_an_ignored_candidate_as_a_negative():
+    generator = torch.Generator().manual_seed(1)
+    losses = torch.rand((2, 40), generator=generator)
+    positive = torch.zeros((2, 40), dtype=torch.bool)
+    positive[:, 0] = True
+    ignored = torch.zeros((2, 40), dtype=torch.bool)
+    ignored[0] = (losses[0] > losses[0].median()) & ~positive[0]  # the hardest half of row 0
+    selected = hard_negative_selection(losses, positive, ratio=3, ignored=ignored)
+    assert not (selected & ignored).any()
+    assert (selected.sum(dim=1) == 4).all()  # the positive and 3 negatives in each row
+    negatives = selected[0] & ~positive[0]
+    assert losses[0][negatives].min() >= losses[0][~selected[0] & ~ignored[0] & ~positive[0]].max()
+
+
 def test_train_acc_t_counts_only_rois_that_have_a_positive_candidate():
     task_count = 4
     stability = torch.zeros((3, 6, 2))

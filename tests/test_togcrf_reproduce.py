@@ -10,20 +10,30 @@ import torch
 from helpers import write_synthetic_samples
 
 from osgd.store import ShardStore
-from togcrf.reproduce import CPU_SCALE, SMALL_SCALE, reproduce, resolve_scale
+from togcrf.reproduce import CPU_SCALE, GPU_SCALE, SMALL_SCALE, reproduce, resolve_scale
 from togcrf.train import load_checkpoint
 
 
 def test_scales_and_the_cpu_recipe():
     assert resolve_scale("cpu") is CPU_SCALE and resolve_scale("small") is SMALL_SCALE
     assert resolve_scale("auto") is (resolve_scale("paper") if torch.cuda.is_available() else CPU_SCALE)
-    with pytest.raises(ValueError, match="expected auto, paper, cpu or small"):
+    with pytest.raises(ValueError, match="expected auto, paper, gpu, cpu, small"):
         resolve_scale("huge")
     # the recipe's options build a model, and its config is a valid training config
     config = CPU_SCALE.train_config("data", "runs/x", "tog", pipeline="recipe", device="cpu", seed=0, resume=False)
     config.validate()
     assert config.optimizer == "adamw" and config.lr_schedule == "cosine" and config.time_budget_minutes == 60
     assert config.model_options["grasp_anchor_size"] == 12.0
+
+
+def test_the_gpu_scale_is_the_cpu_recipe_at_native_size():
+    gpu = resolve_scale("gpu")
+    assert gpu is GPU_SCALE and gpu.image_size == 320 and gpu.workers > 0
+    config = gpu.train_config("data", "runs/x", "tog-crfs", pipeline="gpu", device="cuda", seed=0, resume=False)
+    config.validate()
+    assert (config.optimizer, config.lr_schedule, config.workers) == ("adamw", "cosine", gpu.workers)
+    # the grasp anchors grow with the image: 12 px at 192 px
+    assert config.model_options["grasp_anchor_size"] == pytest.approx(12.0 * 320 / 192)
 
 
 def test_reproduce_writes_both_protocols_tables(tmp_path):

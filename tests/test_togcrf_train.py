@@ -93,6 +93,23 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
         train(quick_config(data_dir, run_dir, epochs=3, resume=True, backbone="resnet34"))
 
 
+def test_init_starts_from_the_weights_of_another_run(data_dir, tmp_path):
+    source = quick_config(data_dir, tmp_path / "source", model="tog")
+    train(source)
+    weights = torch.load(tmp_path / "source" / "checkpoint.pt", weights_only=False)["model"]
+    # zero steps of a fresh run at lr ~0 keep the initial weights: they are the source's
+    tuned = quick_config(data_dir, tmp_path / "tuned", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
+                         lr=1e-12, warmup_steps=0, clip_grad_norm=0.0)
+    train(tuned)
+    tuned_weights = torch.load(tmp_path / "tuned" / "checkpoint.pt", weights_only=False)["model"]
+    assert all(torch.allclose(tuned_weights[name].float(), value.float(), atol=1e-6) for name, value in weights.items())
+    with pytest.raises(ValueError, match=r"--init .*layers differ"):
+        train(quick_config(data_dir, tmp_path / "other", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
+                           model_options={**SMALL, "grasp_channels": 16}))
+    with pytest.raises(FileNotFoundError, match="--init"):
+        train(quick_config(data_dir, tmp_path / "missing", model="tog", init=str(tmp_path / "nothing.pt")))
+
+
 @pytest.mark.parametrize(("model_name", "terms"), [("tog", None), ("tog-crfs-omega", (True, False)),
                                                     ("tog-crfs-mu", (False, True)), ("tog-crfs", (True, True))])
 def test_every_variant_of_table_ii_trains_on_rendered_samples(golden_dir, tmp_path, model_name, terms):

@@ -20,6 +20,16 @@ Geometry and encoding follow ROI-GD (REFERENCE section 3):
   (mod 180 degrees) is at most 22.5 degrees; with several matches the target
   is the mean of their encodings.
 
+Our options (issue #15, ``togcrf.model.ModelOptions``): ``positive_radius``
+widens "in the anchor's cell" to ``|dx|, |dy| <= (1/2 + radius) cells`` (1:
+the 3 x 3 cells around the grasp centre, as FCOS's centre sampling), and the
+target is then the nearest matched grasp (the grasps at the same, nearest
+centre, for their tasks), not the mean of grasps at different places.
+:func:`near_ground_truth` marks the anchors close to a ground-truth grasp
+that are not positive, which :mod:`togcrf.losses` keeps out of the hard
+negatives: the annotations are a sparse sample of the stable grasps, so a
+spot a cell away from an annotated grasp is no evidence of "not stable".
+
 Our choice: the anchor square has a fixed side in pixels of the network input
 (``anchor_size``, default 16 px), not a size relative to the RoI cell. Grasp
 rectangles scale with the gripper opening and the finger width, not with the
@@ -156,6 +166,7 @@ def match(
     grasp_tasks: torch.Tensor,
     task_count: int,
     grid: int = GRID,
+    positive_radius: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Assign the ground-truth grasps of each RoI's object to its anchors.
 
@@ -172,6 +183,10 @@ def match(
     grasp_tasks : (R, G) int64
         Task index of each ground-truth grasp.
     task_count : int
+    grid : int
+    positive_radius : float
+        Cells beyond the anchor's own within which a grasp centre makes it
+        positive (0: the paper's own cell; see the module docstring).
 
     Returns
     -------
@@ -184,11 +199,10 @@ def match(
         grasp position may be annotated with several tasks); zero where not
         positive.
     """
-    cell = (rois[:, 2:] - rois[:, :2]).clamp(min=1e-3) / grid
-    offset = grasps[:, None, :, :2] - anchors[:, :, None, :2]
-    inside = (offset.abs() <= cell[:, None, None, :] / 2).all(dim=-1)
-    angle_ok = wrap_angle(grasps[:, None, :, 4] - anchors[:, :, None, 4]).abs() <= ANGLE_STEP + 1e-6
-    matched = inside & angle_ok & grasp_valid[:, None, :]
+    matched = _near(anchors, rois, grasps, grasp_valid, grid, 0.5 + positive_radius, ANGLE_STEP)
+    if positive_radius > 0:
+        distance = (grasps[:, None, :, :2] - anchors[:, :, None, :2]).norm(dim=-1).masked_fill(~matched, float("inf"))
+        matched &= distance <= distance.min(dim=-1, keepdim=True).values + 1e-3
     weights = matched.to(anchors.dtype)
     count = weights.sum(dim=-1)
     positive = count > 0
@@ -198,3 +212,40 @@ def match(
     one_hot = torch.nn.functional.one_hot(grasp_tasks.clamp(min=0), task_count).to(anchors.dtype)
     task_targets = torch.einsum("rkg,rgt->rkt", weights, one_hot) / denominator
     return positive, regression_targets, task_targets
+
+
+def near_ground_truth(
+    anchors: torch.Tensor,
+    rois: torch.Tensor,
+    grasps: torch.Tensor,
+    grasp_valid: torch.Tensor,
+    radius: float,
+    grid: int = GRID,
+) -> torch.Tensor:
+    """Anchors close to a ground-truth grasp: centre within ``1/2 + radius`` cells, angle within 45 degrees.
+
+    Parameters
+    ----------
+    anchors : (R, K, 5) float
+    rois : (R, 4) float
+    grasps : (R, G, 5) float
+    grasp_valid : (R, G) bool
+    radius : float
+        Cells beyond the anchor's own.
+    grid : int
+
+    Returns
+    -------
+    (R, K) bool
+    """
+    return _near(anchors, rois, grasps, grasp_valid, grid, 0.5 + radius, 2 * ANGLE_STEP).any(dim=-1)
+
+
+def _near(anchors: torch.Tensor, rois: torch.Tensor, grasps: torch.Tensor, grasp_valid: torch.Tensor, grid: int,
+          cells: float, angle: float) -> torch.Tensor:
+    """(R, K, G) bool: grasp centre within ``cells`` cells of the anchor centre on both axes, angle within ``angle``."""
+    cell = (rois[:, 2:] - rois[:, :2]).clamp(min=1e-3) / grid
+    offset = grasps[:, None, :, :2] - anchors[:, :, None, :2]
+    inside = (offset.abs() <= cell[:, None, None, :] * cells).all(dim=-1)
+    angle_ok = wrap_angle(grasps[:, None, :, 4] - anchors[:, :, None, 4]).abs() <= angle + 1e-6
+    return inside & angle_ok & grasp_valid[:, None, :]

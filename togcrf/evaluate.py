@@ -21,6 +21,7 @@ import logging
 import math
 import shlex
 import sys
+import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Annotated, Any
@@ -151,7 +152,48 @@ def evaluate_model(
                 model([image])
 
         speed = dict(measure_speed(run_once, kept_images, warmup=min(2, len(kept_images)), device=device))
+        speed.update(crf_time_share(model, run_once, kept_images, device))
     return {"metrics": evaluator.result(), "speed": speed}
+
+
+def crf_time_share(model: torch.nn.Module, run_once: Any, inputs: list[torch.Tensor], device: str) -> dict[str, float]:
+    """Seconds per image spent in the model's CRF, and their share of the whole (paper V-B discusses its cost).
+
+    A second pass over ``inputs`` with a timer around every
+    :class:`togcrf.crf.MeanFieldCrf` forward (CUDA synchronised at both
+    ends, so this pass runs a little slower than the speed pass). Models
+    without a CRF give ``{}``.
+    """
+    from togcrf.crf import MeanFieldCrf  # noqa: PLC0415
+
+    modules = [module for module in model.modules() if isinstance(module, MeanFieldCrf)]
+    if not modules:
+        return {}
+    synchronise = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    spent = [0.0]
+    started: list[float] = []
+
+    def before(*_: Any) -> None:
+        synchronise()
+        started.append(time.perf_counter())
+
+    def after(*_: Any) -> None:
+        synchronise()
+        spent[0] += time.perf_counter() - started.pop()
+
+    handles = [hook for module in modules
+               for hook in (module.register_forward_pre_hook(before), module.register_forward_hook(after))]
+    try:
+        synchronise()
+        start = time.perf_counter()
+        for image in inputs:
+            run_once(image)
+        synchronise()
+        total = time.perf_counter() - start
+    finally:
+        for handle in handles:
+            handle.remove()
+    return {"crf_seconds_per_image": spent[0] / len(inputs), "crf_share": spent[0] / total if total > 0 else 0.0}
 
 
 def table_row(result: dict[str, Any]) -> dict[str, float | None]:
@@ -314,7 +356,7 @@ def eval_command(
     pipeline: Annotated[str | None, typer.Option(help="Only the samples of this pipeline's manifest.")] = None,
     split: Annotated[str, typer.Option(help="train or test.")] = "test",
     out: Annotated[Path | None, typer.Option(help=f"Evaluation JSON; default {EVAL_FILE} by the checkpoint.")] = None,
-    device: Annotated[str, typer.Option(help="torch device, e.g. cpu or cuda.")] = "cpu",
+    device: Annotated[str, typer.Option(help="auto (CUDA where available), cpu or cuda.")] = "auto",
     max_samples: Annotated[int | None, typer.Option(help="Evaluate only the first N samples of the split.")] = None,
     speed_images: Annotated[int, typer.Option(help="Images timed for the speed (batch 1, after warm-up).")] = 10,
     unmatched_task: Annotated[str, typer.Option(help="Acc-T: 'nearest' or 'wrong' (togcrf.metrics).")] = "nearest",
@@ -323,7 +365,10 @@ def eval_command(
 ) -> None:
     """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON."""
     try:
-        document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split, device=device,
+        from togcrf.train import resolve_device  # noqa: PLC0415
+
+        document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split,
+                                       device=str(resolve_device(device)),
                                        max_samples=max_samples, speed_images=speed_images,
                                        unmatched_task=unmatched_task, protocol=protocol)
     except (FileNotFoundError, ValueError, KeyError) as error:

@@ -19,7 +19,8 @@ from torch.nn import functional
 DEFAULT_NEGATIVE_RATIO = 3
 
 
-def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int) -> torch.Tensor:
+def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int,
+                            ignored: torch.Tensor | None = None) -> torch.Tensor:
     """Positives plus, per row, the ``ratio * positives`` negatives of highest loss.
 
     A row without positives keeps its ``ratio`` hardest negatives, so that RoIs
@@ -31,17 +32,20 @@ def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio:
         Per-candidate loss.
     positive : (R, K) bool
     ratio : int
+    ignored : (R, K) bool, optional
+        Candidates that may not be negatives (``togcrf.anchors.near_ground_truth``).
 
     Returns
     -------
     (R, K) bool
         Candidates that enter the loss.
     """
-    negative_losses = losses.detach().masked_fill(positive, float("-inf"))
+    excluded = positive if ignored is None else positive | ignored
+    negative_losses = losses.detach().masked_fill(excluded, float("-inf"))
     order = negative_losses.argsort(dim=1, descending=True)
     rank = order.argsort(dim=1)
     negatives_wanted = (positive.sum(dim=1) * ratio).clamp(min=ratio)
-    hard_negatives = (rank < negatives_wanted[:, None]) & ~positive
+    hard_negatives = (rank < negatives_wanted[:, None]) & ~excluded
     return positive | hard_negatives
 
 
@@ -53,6 +57,7 @@ def grasp_losses(
     regression_targets: torch.Tensor,
     task_targets: torch.Tensor,
     negative_ratio: int = DEFAULT_NEGATIVE_RATIO,
+    ignored: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """The three grasp losses over a batch of RoIs.
 
@@ -69,6 +74,8 @@ def grasp_losses(
     task_targets : (R, K, T) float
         Soft task labels of the positives (rows sum to 1).
     negative_ratio : int
+    ignored : (R, K) bool, optional
+        Candidates kept out of the hard negatives (near a ground-truth grasp).
 
     Returns
     -------
@@ -81,7 +88,7 @@ def grasp_losses(
     per_candidate = functional.cross_entropy(
         stability_logits.reshape(-1, 2).float(), labels.reshape(-1), reduction="none"
     ).reshape(labels.shape)
-    selected = hard_negative_selection(per_candidate, positive, negative_ratio)
+    selected = hard_negative_selection(per_candidate, positive, negative_ratio, ignored)
     stability = (per_candidate * selected).sum() / selected.sum().clamp(min=1)
     positives = positive.sum().clamp(min=1)
     regression_loss = functional.smooth_l1_loss(

@@ -49,7 +49,7 @@ from torchvision.ops.feature_pyramid_network import LastLevelMaxPool
 from torchvision.ops.poolers import initLevelMapper
 
 from osgd.taxonomy import CATEGORIES, TASKS
-from togcrf.anchors import ANCHOR_ANGLES, DEFAULT_ANCHOR_SIZE, GRID, decode, match, roi_anchors
+from togcrf.anchors import ANCHOR_ANGLES, DEFAULT_ANCHOR_SIZE, GRID, decode, match, near_ground_truth, roi_anchors
 from togcrf.crf import DEFAULT_BANDWIDTH, DEFAULT_ITERATIONS, MeanFieldCrf
 from togcrf.losses import DEFAULT_NEGATIVE_RATIO, grasp_losses, top1_task_hits
 
@@ -119,6 +119,13 @@ class ModelOptions:
     detections_per_image : int
     grasp_anchor_size : float
         Side of the square grasp anchors, pixels (``togcrf.anchors``).
+    grasp_positive_radius : float
+        Cells around a ground-truth grasp's own cell whose anchors are
+        positive for it (0: the paper's own cell; ``togcrf.anchors``).
+    grasp_ignore_radius : float or None
+        Anchors within this many cells beyond their own of a ground-truth
+        grasp (angle within 45 degrees) are never hard negatives (None:
+        every anchor that is not positive may be; ``togcrf.anchors``).
     grasp_rois_per_image : int
         Foreground RoIs per image that train the grasp branch.
     grasp_channels : int
@@ -149,6 +156,8 @@ class ModelOptions:
     box_nms_threshold: float = 0.5
     detections_per_image: int = 50
     grasp_anchor_size: float = DEFAULT_ANCHOR_SIZE
+    grasp_positive_radius: float = 0.0
+    grasp_ignore_radius: float | None = None
     grasp_rois_per_image: int = 16
     grasp_channels: int = 256
     crf_iterations: int = DEFAULT_ITERATIONS
@@ -442,10 +451,14 @@ class TogDetector(nn.Module):
         owners = torch.cat(grasp_owner)
         regression, stability, task_log_probs, anchors = self.grasp_outputs(
             features, grasp_rois, image_list.image_sizes)
+        roi_boxes, owner_grasps = torch.cat(grasp_rois).float(), grasps[owners].float()
         positive, regression_targets, task_targets = match(
-            anchors, torch.cat(grasp_rois).float(), grasps[owners].float(), valid[owners], tasks[owners], len(TASKS))
+            anchors, roi_boxes, owner_grasps, valid[owners], tasks[owners], len(TASKS),
+            positive_radius=options.grasp_positive_radius)
+        ignored = None if options.grasp_ignore_radius is None else near_ground_truth(
+            anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_ignore_radius)
         grasp = grasp_losses(stability, regression, task_log_probs, positive, regression_targets, task_targets,
-                             options.negative_ratio)
+                             options.negative_ratio, ignored)
         hits, rois = top1_task_hits(stability, task_log_probs, positive, task_targets)
         self.last_training_stats = {"acc_t_hits": hits, "acc_t_rois": rois,
                                     "positive_candidates": int(positive.sum())}

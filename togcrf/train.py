@@ -121,6 +121,10 @@ class TrainConfig:
     val_samples : int
         Samples at the end of the training split held out for per-epoch
         validation metrics (0: none).
+    init : str or None
+        Start from the model weights of this checkpoint (fine-tuning): the
+        model and its options must give the same layers; the optimiser,
+        schedule and epochs start afresh.
     time_budget_minutes : float or None
         Stop after the step that exceeds this much training time (the steps'
         time, validation excluded; kept across ``--resume``); the checkpoint
@@ -159,6 +163,7 @@ class TrainConfig:
     scale_jitter: float = 0.1
     val_samples: int = 0
     time_budget_minutes: float | None = None
+    init: str | None = None
 
     def validate(self) -> None:
         """Raise ValueError naming the bad option."""
@@ -320,6 +325,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
                      "validation_samples": [sample.sample_id for sample in validation_samples]}
     torch.manual_seed(config.seed)
     model = build_model(config.model, config.backbone, **config.model_options).to(device)
+    if config.init:
+        _load_initial_weights(model, Path(config.init), device)
     stored_config = {**asdict(config), "model_options": _model_options(model, config)}
     optimizer = build_optimizer(model, config)
     cosine_steps = config.epochs * len(loader) if config.lr_schedule == "cosine" else None
@@ -328,6 +335,20 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     run = _Run(config, device, model, optimizer, scheduler, loader, dataset, sampler, [])
     run.validation = validation_samples
     return run, stored_config, data_identity
+
+
+def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.device) -> None:
+    """Copy the model weights of a checkpoint into ``model`` (``--init``)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"--init {path}: no such checkpoint")
+    weights = torch.load(path, map_location=device, weights_only=False)["model"]
+    try:
+        model.load_state_dict(weights)
+    except RuntimeError as error:
+        first = str(error).strip().splitlines()[0]
+        raise ValueError(f"--init {path}: its layers differ from this model's ({first}); use the same "
+                         "--model, --backbone and layer options") from error
+    logger.info("initial weights from %s", path)
 
 
 def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
@@ -669,6 +690,8 @@ def register(app: typer.Typer) -> None:
         time_budget: Annotated[float | None, typer.Option(
             help="Minutes of training after which the run stops (its checkpoint then holds the part epoch).")] = None,
         resume: Annotated[bool, typer.Option(help="Continue RUN_DIR/checkpoint.pt.")] = False,
+        init: Annotated[Path | None, typer.Option(
+            help="Start from this checkpoint's weights (fine-tuning; optimiser and schedule start afresh).")] = None,
         device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
         amp: Annotated[bool, typer.Option(help="Mixed precision on CUDA.")] = True,
         seed: Annotated[int, typer.Option(help="Seed of initialisation, data order and augmentation.")] = 0,
@@ -689,7 +712,7 @@ def register(app: typer.Typer) -> None:
             device=device, amp=amp, seed=seed, max_samples=max_samples, workers=workers,
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
-            time_budget_minutes=time_budget)
+            time_budget_minutes=time_budget, init=None if init is None else str(init))
         report = ProgressReport(out, epochs, time_budget)
         try:
             result = train(config, report)
