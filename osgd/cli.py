@@ -298,7 +298,7 @@ OutOption = Annotated[Path, typer.Option("--out", "-o", help="PNG file to write.
 
 @show_app.command("model")
 def show_model(model_id: str, out: OutOption) -> None:
-    """A model's mesh coloured by part."""
+    """A model's mesh coloured by part, with its principal axis and how its parts were found."""
     _dispatch("osgd.models.pictures:show_model", model_id=model_id, out=out)
 
 

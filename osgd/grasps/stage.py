@@ -23,6 +23,7 @@ from osgd.grasps.labels import LabelRule, effective_rules
 from osgd.grasps.model_grasps import GraspAnnotator, ModelInput, rules_payload
 from osgd.grasps.params import GraspsStageParams
 from osgd.gripper import PANDA, Gripper
+from osgd.models.parts import without_task_labels
 from osgd.schemas import GRASPS
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
 from osgd.store import ShardRecord, ShardStore
@@ -86,7 +87,24 @@ class GraspsStage(Stage):
     def summary(self, store: ShardStore, records: list[ShardRecord]) -> str:
         """Grasps per category and task, as a text table."""
         counts = grasp_counts(store, records)
-        return format_counts(counts)
+        return format_counts(counts, unlabelled_note(store, records, counts))
+
+
+def unlabelled_note(store: ShardStore, records: Sequence[ShardRecord], counts: Counter[tuple[str, str]]) -> str:
+    """How many grasps have no task, and how many of them belong to models without part labels or hand-made pairs."""
+    unlabelled: set[str] = set()
+    for key in store.keys_on_disk("models"):
+        models = store.read("models", key, columns=["model_id", "name", "face_parts", "annotated_pairs"])
+        names = set(without_task_labels(models))
+        unlabelled.update(m for m, n in zip(models["model_id"].to_pylist(), models["name"].to_pylist(), strict=True)
+                          if n in names)
+    on_unlabelled = 0
+    for record in records:
+        grasps = store.read("grasps", record.key, columns=["model_id"])
+        on_unlabelled += sum(model_id in unlabelled for model_id in grasps.column("model_id").to_pylist())
+    no_task = sum(count for (_, task), count in counts.items() if task == "no task")
+    return (f"no task: {no_task} of {sum(counts.values())} grasps, {on_unlabelled} of them on "
+            f"{len(unlabelled)} models without part labels or hand-made pairs (docs/models.md, automatic parts)")
 
 
 def grasp_counts(store: ShardStore, records: Sequence[ShardRecord]) -> Counter[tuple[str, str]]:
@@ -109,8 +127,8 @@ def grasp_counts(store: ShardStore, records: Sequence[ShardRecord]) -> Counter[t
     return counts
 
 
-def format_counts(counts: Counter[tuple[str, str]]) -> str:
-    """A text table: one row per category, one column per task seen, totals."""
+def format_counts(counts: Counter[tuple[str, str]], note: str = "") -> str:
+    """A text table: one row per category, one column per task seen, totals; ``note`` ends the title line."""
     if not counts:
         return "grasps: none"
     tasks = [task for task in TASKS if any(key[1] == task for key in counts)]
@@ -129,4 +147,4 @@ def format_counts(counts: Counter[tuple[str, str]]) -> str:
                   for column, cell in enumerate(line))
         for line in lines
     ]
-    return "grasps per category and task\n" + "\n".join(text)
+    return "grasps per category and task" + (f" ({note})" if note else "") + "\n" + "\n".join(text)

@@ -9,8 +9,10 @@ smallest principal axis, turned a little so that thickness shows.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -19,12 +21,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pyarrow as pa
+import trimesh
 from matplotlib.collections import PolyCollection
 from matplotlib.patches import Patch
 
+from osgd.models.parts import PrincipalFrame, parts_method, principal_frame
 from osgd.schemas import mesh_from_arrow
 from osgd.store import ShardError, ShardStore
-from osgd.taxonomy import PARTS
+from osgd.taxonomy import PART_INDEX, PARTS
 
 #: Colour of each part (index into PARTS), then of unknown parts.
 PART_COLOURS = np.array(
@@ -70,18 +74,38 @@ def _find_model(store: ShardStore, model_id: str) -> dict:
     raise KeyError(f"no model {model_id!r} in {store.root / 'models'}")
 
 
-def _view_rotation(vertices: np.ndarray) -> np.ndarray:
-    """Rows: screen x (longest principal axis), screen y, depth; turned 30 degrees about x."""
-    centred = vertices - vertices.mean(axis=0)
-    _, _, axes = np.linalg.svd(centred[:: max(1, len(centred) // 5000)], full_matrices=False)
-    if np.linalg.det(axes) < 0:
-        axes[2] = -axes[2]
+def _view_rotation(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Rows: screen x (the mesh's length), screen y (its width), depth (its thickness); turned 30 degrees about x.
+
+    The axes are :func:`osgd.models.parts.principal_frame`'s.
+    """
+    axes = principal_frame(trimesh.Trimesh(vertices, faces, process=False)).axes
     angle = math.radians(30.0)
     tilt = np.array([[1, 0, 0], [0, math.cos(angle), -math.sin(angle)], [0, math.sin(angle), math.cos(angle)]])
     return tilt @ axes
 
 
-def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray) -> None:
+@dataclass(frozen=True)
+class View:
+    """How :func:`draw_mesh` projected a mesh, to draw more in the same picture.
+
+    Attributes
+    ----------
+    rotation : (3, 3) float
+        Rows: screen x, screen y, depth, in the mesh frame.
+    centre : (3,) float
+        The mesh point at the screen origin, m.
+    """
+
+    rotation: np.ndarray
+    centre: np.ndarray
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) mesh-frame points to (N, 2) screen points."""
+        return ((np.asarray(points, dtype=np.float64) - self.centre) @ self.rotation.T)[:, :2]
+
+
+def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray) -> View:
     """Draw a mesh into 2-D axes, coloured by part and shaded.
 
     Parameters
@@ -89,8 +113,14 @@ def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_part
     vertices : (V, 3) float, metres
     faces : (F, 3) int
     face_parts : (F,) int, index into PARTS or -1
+
+    Returns
+    -------
+    View
+        The projection used.
     """
-    rotated = (vertices - vertices.mean(axis=0)) @ _view_rotation(vertices).T
+    view = View(_view_rotation(vertices, faces), vertices.mean(axis=0))
+    rotated = (vertices - view.centre) @ view.rotation.T
     triangles = rotated[faces]
     normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     norms = np.linalg.norm(normals, axis=1)
@@ -112,17 +142,62 @@ def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_part
     axes.set_aspect("equal")
     axes.set_xticks([])
     axes.set_yticks([])
+    return view
 
 
-def _legend_handles(parts: set[int]) -> list[Patch]:
+def legend_handles(parts: set[int]) -> list[Patch]:
+    """Legend entries for the parts seen (indices into PARTS, -1 unknown), in PARTS order."""
     handles = [Patch(color=PART_COLOURS[index], label=PARTS[index]) for index in sorted(p for p in parts if p >= 0)]
     if -1 in parts:
         handles.append(Patch(color=UNKNOWN_COLOUR, label="unknown"))
     return handles
 
 
+def _working_direction(
+    vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray, provenance: dict
+) -> tuple[PrincipalFrame, bool]:
+    """The mesh's principal frame turned so that *t* points to the working end, and whether that end is known.
+
+    The automatic parts' recorded axis when there is one, else from the handle faces to the others.
+    """
+    frame = principal_frame(trimesh.Trimesh(vertices, faces, process=False))
+    axis = (provenance.get("parts") or {}).get("axis")
+    if axis is not None:
+        return (frame if frame.axes[0] @ np.asarray(axis) >= 0 else frame.flipped()), True
+    handle = face_parts == PART_INDEX["handle"]
+    if not handle.any() or handle.all():
+        return frame, False
+    centres = vertices[faces].mean(axis=1)
+    towards = centres[~handle & (face_parts >= 0)].mean(axis=0) - centres[handle].mean(axis=0)
+    return (frame if frame.axes[0] @ towards >= 0 else frame.flipped()), True
+
+
+def draw_axis(axes: plt.Axes, view: View, frame: PrincipalFrame, known: bool) -> None:
+    """The principal axis through the mesh, its length long; an arrow to the working end when known.
+
+    Parameters
+    ----------
+    view : View
+        What :func:`draw_mesh` returned for the mesh.
+    frame : PrincipalFrame
+        Its *t* axis pointing to the working end.
+    """
+    half = frame.length / 2 * frame.axes[0]
+    ends = view.project(np.array([frame.centre - half, frame.centre + half]))
+    style = "-|>" if known else "-"
+    axes.annotate("", xy=ends[1], xytext=ends[0],
+                  arrowprops={"arrowstyle": style, "color": "black", "linewidth": 1.2, "linestyle": "--"})
+    if known:
+        axes.annotate("handle end", ends[0], textcoords="offset points", xytext=(0, -14), ha="center", fontsize=8)
+        axes.annotate("working end", ends[1], textcoords="offset points", xytext=(0, 8), ha="center", fontsize=8)
+
+
 def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
-    """Write a PNG of one model coloured by part, with a legend.
+    """Write a PNG of one model coloured by part, with its principal axis and a legend.
+
+    The title says how the parts were found (procedural, sidecar,
+    automatic with its confidence, none); the dashed principal axis runs
+    from the handle end to the working end, so a wrong head shows at a glance.
 
     Raises
     ------
@@ -132,14 +207,23 @@ def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
     row = _find_model(store, model_id)
     vertices, faces = mesh_from_arrow(row["vertices"], row["faces"])
     face_parts = np.asarray(row["face_parts"], dtype=np.int64)
+    provenance = json.loads(row["provenance"])
+    method, confidence = parts_method(row["source"], provenance)
     figure, axes = plt.subplots(figsize=(8, 5), dpi=120)
-    draw_mesh(axes, vertices, faces, face_parts)
+    view = draw_mesh(axes, vertices, faces, face_parts)
+    draw_axis(axes, view, *_working_direction(vertices, faces, face_parts, provenance))
+    found = {
+        "procedural": "the generator's parts",
+        "sidecar": "parts from the sidecar's regions",
+        "none": "no part labels" + (f" (automatic parts not found, confidence {confidence:.2f})"
+                                    if row["source"] == "user" else ""),
+    }.get(method, f"{method} parts, confidence {confidence:.2f}")
     axes.set_title(
         f"{row['name']} ({row['category']}, {row['source']})  {row['length'] * 100:.1f} cm, "
-        f"{row['mass'] * 1000:.0f} g, {len(faces)} faces, {len(row['convex_parts'])} convex parts",
+        f"{row['mass'] * 1000:.0f} g, {len(faces)} faces, {len(row['convex_parts'])} convex parts\n{found}",
         fontsize=9,
     )
-    axes.legend(handles=_legend_handles(set(face_parts.tolist())), loc="lower right", fontsize=8)
+    axes.legend(handles=legend_handles(set(face_parts.tolist())), loc="lower right", fontsize=8)
     figure.tight_layout()
     figure.savefig(out)
     plt.close(figure)
@@ -174,7 +258,7 @@ def show_models(store: ShardStore, out: str | Path) -> str:
         axes.set_title(f"{row['name']}\n{row['length'] * 100:.1f} cm", fontsize=6)
     for axes in grid.flat[count:]:
         axes.axis("off")
-    figure.legend(handles=_legend_handles(seen_parts), loc="upper center", ncol=11, fontsize=8)
+    figure.legend(handles=legend_handles(seen_parts), loc="upper center", ncol=11, fontsize=8)
     figure.tight_layout(rect=(0, 0, 1, 1 - 0.5 / (1.3 * rows_count + 0.6)))
     figure.savefig(out)
     plt.close(figure)

@@ -14,7 +14,11 @@ to metres (OSGD models to a length drawn from the category's real-size range
 with an rng seeded from the pipeline seed and the item id, so adding a model
 never changes the others), decomposed into convex parts (cached,
 :mod:`osgd.models.decomposition`) and given mass properties and friction
-(:mod:`osgd.models.mass`, :mod:`osgd.models.categories`).
+(:mod:`osgd.models.mass`, :mod:`osgd.models.categories`). A user's mesh is
+scaled by its true length (the longest side of its oriented bounding box) and
+the faces its sidecar's regions leave unclaimed get automatic parts
+(:mod:`osgd.models.parts`); how its parts were found is recorded in
+``provenance["parts"]``.
 
 A model whose mesh is unusable (empty, flat, far off scale...) gives a note
 and an empty shard; a file that cannot be read (an OBJ trimesh cannot parse)
@@ -42,7 +46,7 @@ import trimesh
 from pydantic import Field
 
 from osgd.errors import InputError
-from osgd.models import decomposition, osgd_import, procedural, user
+from osgd.models import decomposition, osgd_import, parts, procedural, user
 from osgd.models.categories import category_properties, draw_length
 from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
 from osgd.models.osgd_import import AnnotatedPair
@@ -50,7 +54,7 @@ from osgd.models.validation import ModelRejected, check_length, check_mesh
 from osgd.schemas import MODELS, empty_table
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_notes
 from osgd.store import ShardRecord, ShardStore, file_sha256
-from osgd.taxonomy import CATEGORIES
+from osgd.taxonomy import CATEGORIES, UNKNOWN_PART
 
 log = logging.getLogger(__name__)
 
@@ -132,6 +136,36 @@ class _SourceModel:
     notes: list[str] = field(default_factory=list)
     length: float | None = None  # real length wanted, m
     scale: float | None = None  # or the scale given
+    # Users' meshes: length is the oriented box's longest side, and faces no region claims get automatic parts.
+    user_mesh: bool = False
+
+
+def _axis_aligned_length(mesh: trimesh.Trimesh) -> float:
+    """The longest axis-aligned extent: the length of procedural tools (built along x) and OSGD models."""
+    return float(mesh.extents.max())
+
+
+def _user_parts(mesh: trimesh.Trimesh, category: str, face_parts: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """A user's mesh's parts: its sidecar's, automatic parts on the faces no region claims.
+
+    Returns the parts (F,) int8 and the ``parts`` record of the provenance (with a ``note`` when the
+    automatic parts were not found).
+    """
+    unclaimed = face_parts == UNKNOWN_PART
+    if not unclaimed.any():
+        return face_parts, {"method": "sidecar", "confidence": 1.0}
+    found = parts.find_parts(mesh, category)
+    record: dict[str, Any] = {
+        "method": "automatic" if unclaimed.all() else "sidecar+automatic",
+        "confidence": found.confidence,
+        "axis": [round(float(value), 6) for value in found.axis],
+    }
+    if not found.found:
+        del record["axis"]
+        record["method"] = "sidecar" if not unclaimed.all() else "none"
+        record["note"] = found.note
+        return face_parts, record
+    return np.where(unclaimed, found.face_parts, face_parts).astype(np.int8), record
 
 
 class ModelsStage(Stage):
@@ -168,7 +202,13 @@ class ModelsStage(Stage):
             for mesh_path in user.list_user_meshes(base):
                 sidecar = user.sidecar_path(mesh_path)
                 files = [mesh_path, sidecar, *user.grasp_file_paths(sidecar)]
-                payload = {**common, "source": "user", "mesh": mesh_path.name, "files": _hashes(files, base)}
+                payload = {
+                    **common,
+                    "source": "user",
+                    "mesh": mesh_path.name,
+                    "files": _hashes(files, base),
+                    "automatic_parts": parts.VERSION,
+                }
                 items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
         return items
 
@@ -228,6 +268,7 @@ class ModelsStage(Stage):
                 notes=notes,
                 length=sidecar.length,
                 scale=sidecar.scale,
+                user_mesh=True,
             )
         raise ValueError(f"item {item.item_id}: unknown source {source!r}")
 
@@ -246,12 +287,16 @@ class ModelsStage(Stage):
         checked = check_mesh(model.mesh, model.face_parts, name=item.item_id)
         notes = [*model.notes, *checked.notes]
         mesh = checked.mesh
-        length_before = float(mesh.extents.max())
-        scale = model.scale if model.scale is not None else float(model.length) / length_before
+        measure = parts.true_length if model.user_mesh else _axis_aligned_length
+        scale = model.scale if model.scale is not None else float(model.length) / measure(mesh)
         mesh.apply_scale(scale)
-        length = float(mesh.extents.max())
+        length = measure(mesh)
         check_length(length, model.category, name=item.item_id)
         pairs = [pair.scaled(scale) for pair in model.pairs]
+        face_parts, found = checked.face_parts, None
+        if model.user_mesh:
+            face_parts, found = _user_parts(mesh, model.category, face_parts)
+            notes += [found["note"]] if found.get("note") else []
 
         preset = decomposition.resolve_preset(item.payload["decomposition"], model.category)
         compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, store.root / "cache" / "decompositions")
@@ -281,6 +326,8 @@ class ModelsStage(Stage):
             "volume": mass.volume,
             "notes": notes,
         }
+        if found is not None:
+            provenance["parts"] = {key: value for key, value in found.items() if key != "note"}
         row = {
             "model_id": model_id,
             "name": model.name if item.payload["source"] == "osgd" else item.item_id,
@@ -290,7 +337,7 @@ class ModelsStage(Stage):
             "length": length,
             "vertices": vertices.tolist(),
             "faces": faces.tolist(),
-            "face_parts": checked.face_parts.astype(int).tolist(),
+            "face_parts": face_parts.astype(int).tolist(),
             "convex_parts": [{"vertices": v.tolist(), "faces": f.astype(np.int32).tolist()} for v, f in compound.parts],
             "decomposition": decomposition.description_json(compound.description),
             "density": density,
@@ -305,17 +352,25 @@ class ModelsStage(Stage):
 
     # -- reporting --------------------------------------------------------------------
     def summary(self, store: ShardStore, records: Sequence[ShardRecord]) -> str:
-        """Models per category and source, and how many items were skipped or noted."""
+        """Models per category and source, how their parts were found, and which get no task labels."""
         counts: dict[tuple[str, str], int] = collections.Counter()
+        methods: dict[str, int] = collections.Counter()
+        unlabelled: list[str] = []
         skipped = noted = 0
+        columns = ["name", "category", "source", "face_parts", "annotated_pairs", "provenance"]
         for record in records:
             noted += bool(read_notes(store, "models", record.key))
             if record.rows == 0:
                 skipped += 1
                 continue
-            table = store.read("models", record.key, columns=["category", "source"])
-            for category, source in zip(table["category"].to_pylist(), table["source"].to_pylist(), strict=True):
+            table = store.read("models", record.key, columns=columns)
+            unlabelled += parts.without_task_labels(table)
+            for category, source, provenance in zip(
+                table["category"].to_pylist(), table["source"].to_pylist(), table["provenance"].to_pylist(),
+                strict=True,
+            ):
                 counts[(category, source)] += 1
+                methods[parts.parts_method(source, json.loads(provenance))[0]] += 1
         sources = sorted({source for _, source in counts})
         lines = ["models per category: " + ", ".join(sources)]
         for category in CATEGORIES:
@@ -323,4 +378,10 @@ class ModelsStage(Stage):
             if any(row):
                 lines.append(f"  {category:<12}" + "".join(f"{count:>6}" for count in row))
         lines.append(f"  total {sum(counts.values())} models; {skipped} skipped; {noted} with notes")
+        lines.append("  parts: " + ", ".join(f"{count} {method}" for method, count in sorted(methods.items())))
+        if unlabelled:
+            lines.append(
+                f"  {len(unlabelled)} models without task labels (no parts found, no hand-made pairs; "
+                f"their grasps get no task): {', '.join(sorted(unlabelled))}"
+            )
         return "\n".join(lines)

@@ -3,8 +3,8 @@
 For ``<user dir>/drill.stl`` the sidecar is ``<user dir>/drill.toml``::
 
     category = "screwdriver"
-    length = 0.25            # real longest extent, m  (or: scale = 0.001)
-    default_part = "handle"  # faces no region claims; omit for unknown
+    length = 0.25            # real length, m: the longest side of the mesh's oriented box  (or: scale = 0.001)
+    default_part = "handle"  # faces no region claims; omit: automatic parts (osgd.models.parts)
 
     [[parts]]                # later regions win over earlier ones
     part = "shaft"
@@ -112,7 +112,9 @@ class Sidecar(_Strict):
     """The contents of a sidecar file."""
 
     category: str
-    length: float | None = Field(default=None, gt=0, description="real longest extent, m")
+    length: float | None = Field(
+        default=None, gt=0, description="real length, m: the longest side of the mesh's oriented bounding box"
+    )
     scale: float | None = Field(default=None, gt=0, description="mesh units to metres")
     default_part: str | None = None
     parts: list[PartRegion] = Field(default_factory=list)

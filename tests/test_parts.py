@@ -1,0 +1,164 @@
+"""Automatic parts and true length for users' meshes (issue #16): osgd/models/parts.py and the models stage."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from osgd.grasps.labels import DEFAULT_RULES
+from osgd.models import procedural
+from osgd.models.parts import find_parts, parts_method, principal_frame, true_length
+from osgd.models.stage import ModelsStage, item_rng
+from osgd.stage import run_stage
+from osgd.store import ShardStore
+from osgd.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
+
+#: Share of the surface area whose automatic part must be the generator's.
+AGREEMENT = 0.9
+
+
+def _tool(category: str, index: int = 0) -> procedural.ProceduralModel:
+    return procedural.generate(category, item_rng(0, f"procedural/{category}_{index:02d}"))
+
+
+def _tilted(mesh: trimesh.Trimesh, seed: int) -> trimesh.Trimesh:
+    """The mesh under a random rotation and a shift."""
+    rng = np.random.default_rng(seed)
+    transform = trimesh.transformations.random_rotation_matrix(rng.random(3))
+    transform[:3, 3] = rng.uniform(-0.1, 0.1, 3)
+    out = mesh.copy()
+    out.apply_transform(transform)
+    return out
+
+
+def _remeshed(tool: procedural.ProceduralModel, seed: int) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Remeshed to edges of at most 3 mm, every vertex moved by 0.2 mm noise, tilted: a scan's stand-in."""
+    vertices, faces, index = trimesh.remesh.subdivide_to_size(
+        tool.mesh.vertices, tool.mesh.faces, max_edge=0.003, max_iter=20, return_index=True
+    )
+    vertices = vertices + np.random.default_rng(seed).normal(0.0, 0.0002, vertices.shape)
+    return _tilted(trimesh.Trimesh(vertices, faces, process=False), seed), tool.face_parts[index]
+
+
+def _agreement(mesh: trimesh.Trimesh, truth: np.ndarray, found: np.ndarray) -> float:
+    return float(mesh.area_faces[truth == found].sum() / mesh.area_faces.sum())
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_a_tilted_tool_gets_its_parts(category):
+    tool = _tool(category)
+    mesh = _tilted(tool.mesh, seed=CATEGORIES.index(category))
+    found = find_parts(mesh, category)
+    assert found.found and found.confidence >= 0.5
+    assert _agreement(mesh, tool.face_parts, found.face_parts) >= AGREEMENT
+    # The axis points from the handle to the working end, in the tilted mesh's frame.
+    handle = mesh.triangles_center[tool.face_parts == PART_INDEX["handle"]].mean(axis=0)
+    rest = mesh.triangles_center[tool.face_parts != PART_INDEX["handle"]].mean(axis=0)
+    assert (rest - handle) @ found.axis > 0
+
+
+@pytest.mark.parametrize("category", ["hammer", "fork", "toothbrush", "spatula", "pliers"])
+def test_a_remeshed_noisy_tool_gets_its_parts(category):
+    mesh, truth = _remeshed(_tool(category, 1), seed=7)
+    found = find_parts(mesh, category)
+    assert found.found
+    assert _agreement(mesh, truth, found.face_parts) >= AGREEMENT
+
+
+def test_every_automatic_part_is_one_the_label_rules_name():
+    """Automatic parts only use parts that the grasps stage's rule of the category labels by."""
+    for category in CATEGORIES:
+        mesh = _tool(category).mesh
+        used = {PARTS[part] for part in np.unique(find_parts(mesh, category).face_parts)}
+        rule = DEFAULT_RULES[category]
+        assert used <= {*rule.handle, *rule.working, "neck"}, (category, used)
+
+
+def test_a_shape_without_the_parts_is_left_unknown_with_a_reason():
+    box = trimesh.creation.box(extents=[0.3, 0.03, 0.02])
+    found = find_parts(box, "hammer")
+    assert not found.found and (found.face_parts == UNKNOWN_PART).all()
+    assert "hammer" in found.note and "no head wider than the handle" in found.note and "[[parts]]" in found.note
+
+
+def test_true_length_of_a_diagonal_mesh():
+    """A stick lying diagonally: its axis-aligned extent is short of its length (a scale from it oversizes it)."""
+    turn = trimesh.transformations.euler_matrix(0.0, np.radians(20.0), np.radians(40.0))
+    stick = trimesh.creation.box(extents=[0.2, 0.03, 0.02], transform=turn)
+    assert stick.extents.max() < 0.17
+    assert true_length(stick) == pytest.approx(0.2, rel=1e-3)
+    assert abs(principal_frame(stick).axes[0] @ turn[:3, 0]) == pytest.approx(1.0, abs=1e-4)
+
+
+# -- the models stage -------------------------------------------------------------------------------------
+
+
+def _build_user(tmp_path, meshes: dict[str, tuple[trimesh.Trimesh, str]]):
+    """Run the models stage on users' meshes (file stem -> (mesh, sidecar text)); the rows by stem."""
+    user_dir = tmp_path / "mine"
+    user_dir.mkdir()
+    for stem, (mesh, sidecar) in meshes.items():
+        mesh.export(user_dir / f"{stem}.stl")
+        (user_dir / f"{stem}.toml").write_text(sidecar)
+    stage = ModelsStage()
+    params = stage.Params(sources=["user"], user_dir=str(user_dir), decomposition="hull")
+    store = ShardStore(tmp_path / "data")
+    report = run_stage(stage, stage.planned(params, 0, {}), store)
+    assert report.ok, report.failures
+    rows = {}
+    for record in report.records:
+        table = store.read("models", record.key)
+        rows[record.item_id.removeprefix("user/")] = table.to_pylist()[0] if table.num_rows else None
+    return rows, report, stage.summary(store, report.records)
+
+
+def _in_millimetres(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    out = mesh.copy()
+    out.apply_scale(1000.0)
+    return out
+
+
+def test_a_user_mesh_with_only_category_and_length_gets_parts_and_its_true_length(tmp_path):
+    tool = _tool("hammer", 2)
+    mesh = _in_millimetres(_tilted(tool.mesh, seed=22))
+    rows, _, summary = _build_user(tmp_path, {"scan": (mesh, 'category = "hammer"\nlength = 0.3\n')})
+    row = rows["scan"]
+    assert row["length"] == pytest.approx(0.3, rel=1e-9)
+    stored = trimesh.Trimesh(np.array(row["vertices"]), np.array(row["faces"]), process=False)
+    assert true_length(stored) == pytest.approx(0.3, rel=0.01)
+    assert row["scale"] == pytest.approx(0.3 / true_length(mesh), rel=1e-6)
+    provenance = json.loads(row["provenance"])
+    assert provenance["parts"]["method"] == "automatic" and provenance["parts"]["confidence"] >= 0.5
+    assert parts_method("user", provenance)[0] == "automatic"
+    assert {PART_INDEX["handle"], PART_INDEX["head"]} <= set(row["face_parts"])
+    assert "parts: 1 automatic" in summary and "without task labels" not in summary
+
+
+def test_sidecar_regions_win_and_automatic_parts_fill_the_rest(tmp_path):
+    tool = _tool("knife", 1)
+    # A region that claims the blade's tip as "handle", against the geometry: the sidecar wins there.
+    sidecar = (
+        'category = "knife"\nscale = 1.0\n\n[[parts]]\npart = "handle"\n'
+        "half_space = { point = [0.06, 0.0, 0.0], normal = [1.0, 0.0, 0.0] }\n"
+    )
+    rows, _, _ = _build_user(tmp_path, {"knife": (tool.mesh, sidecar)})
+    row = rows["knife"]
+    centres = trimesh.Trimesh(np.array(row["vertices"]), np.array(row["faces"]), process=False).triangles_center
+    face_parts = np.array(row["face_parts"])
+    claimed = centres[:, 0] >= 0.06
+    assert claimed.any() and (face_parts[claimed] == PART_INDEX["handle"]).all()
+    assert {PART_INDEX["handle"], PART_INDEX["blade"]} <= set(face_parts[~claimed])
+    assert json.loads(row["provenance"])["parts"]["method"] == "sidecar+automatic"
+
+
+def test_a_user_mesh_whose_parts_cannot_be_found_gets_a_note_and_is_counted(tmp_path):
+    brick = _in_millimetres(trimesh.creation.box(extents=[0.25, 0.04, 0.03]))
+    rows, report, summary = _build_user(tmp_path, {"brick": (brick, 'category = "hammer"\nlength = 0.25\n')})
+    assert (np.array(rows["brick"]["face_parts"]) == UNKNOWN_PART).all()
+    note = " ".join(report.notes["user/brick"])
+    assert "automatic parts" in note and "no task" in note and "[[parts]]" in note
+    assert json.loads(rows["brick"]["provenance"])["parts"]["method"] == "none"
+    assert "1 models without task labels" in summary and "user/brick" in summary
