@@ -443,16 +443,26 @@ class ShardGroupedSampler(Sampler[int]):
     random order, so a streaming dataset decodes each shard once per epoch.
     The order depends only on ``seed`` and the epoch (set with
     :meth:`set_epoch`).
+
+    For ``world`` processes of data-parallel training (``togcrf.distributed``)
+    each rank takes, from every ``world * batch_size`` items of that order,
+    its own ``batch_size`` (rank 0 the first), so that the processes' step
+    ``k`` together holds the items of step ``k`` of one process at batch
+    ``world * batch_size``; the last, incomplete global batch is dropped so
+    that every rank takes the same number of steps.
     """
 
-    def __init__(self, dataset: SamplesDataset, seed: int = 0, shuffle: bool = True) -> None:
+    def __init__(self, dataset: SamplesDataset, seed: int = 0, shuffle: bool = True, *, rank: int = 0,
+                 world: int = 1, batch_size: int = 1) -> None:
         self.groups: dict[int, list[int]] = {}
         for item, (shard_number, _) in enumerate(dataset.index):
             self.groups.setdefault(shard_number, []).append(item)
         self.seed = seed
         self.shuffle = shuffle
         self.epoch = 0
-        self.length = len(dataset)
+        self.rank, self.world, self.batch_size = rank, world, batch_size
+        global_batch = world * batch_size
+        self.length = len(dataset) if world == 1 else len(dataset) // global_batch * batch_size
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -461,16 +471,26 @@ class ShardGroupedSampler(Sampler[int]):
         return self.length
 
     def __iter__(self) -> Iterator[int]:
+        order = self._order()
+        if self.world == 1:
+            yield from order
+            return
+        global_batch = self.world * self.batch_size
+        for start in range(0, len(order) - global_batch + 1, global_batch):
+            first = start + self.rank * self.batch_size
+            yield from order[first:first + self.batch_size]
+
+    def _order(self) -> list[int]:
+        """Every item in this epoch's order."""
         shards = sorted(self.groups)
         if not self.shuffle:
-            for shard in shards:
-                yield from self.groups[shard]
-            return
+            return [item for shard in shards for item in self.groups[shard]]
         rng = np.random.default_rng([self.seed, self.epoch])
+        order = []
         for shard in rng.permutation(shards):
             items = self.groups[int(shard)]
-            for position in rng.permutation(len(items)):
-                yield items[int(position)]
+            order.extend(items[int(position)] for position in rng.permutation(len(items)))
+        return order
 
 
 def collate(batch: Sequence[tuple[torch.Tensor, dict[str, torch.Tensor], str]]

@@ -46,6 +46,7 @@ import torch
 import typer
 from torch.utils.data import DataLoader
 
+from togcrf import distributed
 from togcrf.data import SamplesDataset, ShardGroupedSampler, collate
 from togcrf.model import BACKBONES, MODEL_NAMES, build_model
 
@@ -296,6 +297,8 @@ class _Run:
     dataset: SamplesDataset
     sampler: ShardGroupedSampler
     validation: list[int]
+    context: distributed.Context = field(default_factory=distributed.Context)
+    forward: torch.nn.Module | None = None  # the model, or DistributedDataParallel around it
     trained_seconds: float = 0.0
     global_step: int = 0
     out_of_time: bool = False
@@ -308,7 +311,9 @@ class _Run:
 
 def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any]]:
     """Data, model, optimiser and schedule of a run; the stored config and the data identity."""
-    device = resolve_device(config.device)
+    context = distributed.from_environment()
+    device = distributed.process_device(context, resolve_device(config.device))
+    distributed.start(context, device)
     dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
                              image_size=config.image_size, augment=config.augment, seed=config.seed,
                              max_samples=config.max_samples, scale_jitter=config.scale_jitter)
@@ -317,7 +322,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     kept = len(dataset) - config.val_samples
     validation_samples = [dataset.read_sample(item) for item in range(kept, len(dataset))]
     dataset.index = dataset.index[:kept]
-    sampler = ShardGroupedSampler(dataset, seed=config.seed)
+    sampler = ShardGroupedSampler(dataset, seed=config.seed, rank=context.rank, world=context.world,
+                                  batch_size=config.batch_size)
     loader = DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, collate_fn=collate,
                         num_workers=config.workers, pin_memory=device.type == "cuda")
     data_identity = {"data_dir": str(Path(config.data).resolve()), "pipeline": config.pipeline,
@@ -332,8 +338,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     cosine_steps = config.epochs * len(loader) if config.lr_schedule == "cosine" else None
     scheduler = torch.optim.lr_scheduler.LambdaLR(
         optimizer, WarmupSchedule(config.warmup_steps, len(loader), config.lr_decay_epochs, cosine_steps))
-    run = _Run(config, device, model, optimizer, scheduler, loader, dataset, sampler, [])
-    run.validation = validation_samples
+    run = _Run(config, device, model, optimizer, scheduler, loader, dataset, sampler, validation_samples,
+               context, distributed.wrap(model, context, device))
     return run, stored_config, data_identity
 
 
@@ -386,7 +392,7 @@ def train_one_epoch(run: _Run, epoch: int, progress: Callable[[Progress], None] 
         step_started = time.perf_counter()
         images, targets = _to_device(cpu_images, cpu_targets, run.device)
         with torch.autocast(device_type=run.device.type, dtype=amp_dtype, enabled=use_amp):
-            losses = model(images, targets)
+            losses = run.forward(images, targets)
         total = sum(losses.values())
         if not torch.isfinite(total):
             terms = {key: float(value) for key, value in losses.items()}
@@ -401,7 +407,9 @@ def train_one_epoch(run: _Run, epoch: int, progress: Callable[[Progress], None] 
         scaler.update()
         run.scheduler.step()
         run.global_step += 1
-        run.trained_seconds += time.perf_counter() - step_started
+        # rank 0's clock in every process, so that all stop at the same step of a time budget
+        run.trained_seconds += distributed.rank_zero_value(time.perf_counter() - step_started, run.context,
+                                                           run.device)
         if config.time_budget_minutes is not None and config.lr_schedule == "cosine":
             _follow_the_budget(run)
         steps += 1
@@ -483,21 +491,26 @@ def train(config: TrainConfig, progress: Callable[[Progress], None] | None = Non
         if not config.resume:
             raise ValueError(f"{checkpoint_path} exists: pass --resume to continue it, or choose another --out")
         start_epoch = _resume(run, checkpoint_path, stored_config)
-    (run_dir / "config.json").write_text(json.dumps({**stored_config, "data_identity": data_identity}, indent=2))
+    main = run.context.main  # only rank 0 writes the run dir and validates (togcrf.distributed)
+    if main:
+        (run_dir / "config.json").write_text(json.dumps({**stored_config, "data_identity": data_identity},
+                                                        indent=2))
     metrics_path = run_dir / "metrics.csv"
     rows = [row for row in _read_metrics(metrics_path) if int(row["epoch"]) < start_epoch]
-    writer = _tensorboard_writer(run_dir)
+    writer = _tensorboard_writer(run_dir) if main else None
     last_row: dict[str, Any] = {}
     run.global_step = start_epoch * len(run.loader)
     for epoch in range(start_epoch, config.epochs):
-        last_row = train_one_epoch(run, epoch, progress, writer)
-        last_row.update(validate(run))
-        rows.append(last_row)
-        _write_metrics(metrics_path, rows)
-        _atomic_save({"model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
-                      "scheduler": run.scheduler.state_dict(), "epoch": epoch, "config": stored_config,
-                      "data": data_identity, "stopped_by_budget": run.out_of_time,
-                      "trained_seconds": run.trained_seconds}, checkpoint_path)
+        last_row = train_one_epoch(run, epoch, progress if main else None, writer)
+        if main:
+            last_row.update(validate(run))
+            rows.append(last_row)
+            _write_metrics(metrics_path, rows)
+            _atomic_save({"model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
+                          "scheduler": run.scheduler.state_dict(), "epoch": epoch, "config": stored_config,
+                          "data": data_identity, "stopped_by_budget": run.out_of_time,
+                          "trained_seconds": run.trained_seconds}, checkpoint_path)
+        distributed.barrier(run.context)
         if writer is not None:
             for key in ("loss", *LOSS_TERMS, "train_acc_t_top1", *VALIDATION_COLUMNS):
                 if key in last_row:
@@ -505,7 +518,7 @@ def train(config: TrainConfig, progress: Callable[[Progress], None] | None = Non
             writer.flush()
         logger.info("epoch %d: loss %.4f, train Acc-T top-1 %.3f", epoch, last_row["loss"],
                     last_row["train_acc_t_top1"])
-        if progress is not None:
+        if progress is not None and main:
             progress(Progress(epoch, config.epochs, last_row["steps"], len(run.loader), {}, metrics=last_row))
         if run.out_of_time:
             logger.info("time budget of %s minutes spent after epoch %d", config.time_budget_minutes, epoch)
@@ -704,6 +717,8 @@ def register(app: typer.Typer) -> None:
         Progress: a bar on a terminal; a line every 30 s in RUN_DIR/train.log
         (and on stdout when it is not a terminal) with the losses, images/s
         and the time left. The CPU recipe is ``togcrf reproduce --scale cpu``.
+        Several processes: ``torchrun --nproc-per-node N -m togcrf train ...``
+        (``--batch-size`` per process; ``togcrf.distributed``).
         """
         config = TrainConfig(
             resume=resume, data=str(data), out=str(out), pipeline=pipeline, model=model, backbone=backbone,
@@ -713,14 +728,17 @@ def register(app: typer.Typer) -> None:
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
             time_budget_minutes=time_budget, init=None if init is None else str(init))
-        report = ProgressReport(out, epochs, time_budget)
+        report = ProgressReport(out, epochs, time_budget) if distributed.from_environment().main else None
         try:
             result = train(config, report)
         except (ValueError, FileNotFoundError, FloatingPointError) as error:
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(1) from error
         finally:
-            report.close()
+            if report is not None:
+                report.close()
+        if not distributed.from_environment().main:
+            return
         if not result:
             typer.echo(f"{out}: already trained {epochs} epochs")
         else:
