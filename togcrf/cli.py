@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "togcrf.predict",
     "togcrf.figures",
     "togcrf.reproduce",
+    "togcrf.robot.cli",
 )
 
 

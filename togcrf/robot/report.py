@@ -1,0 +1,180 @@
+"""The trial log (Parquet), Table III and the failure pictures.
+
+Trial log columns (:data:`TRIAL_LOG`), one row per trial and policy:
+
+======================  =====================================================
+``policy``              policy name (``oracle``, ``random``, ``tog:RUN`` ...)
+``checkpoint``          the checkpoint file ("" for oracle and random)
+``task``, ``category``  the trial's task; the named category ("" for tool tasks)
+``repeat``              trial number within the task
+``scene_index``         the trial's first scene index (>= 10^9, never a training scene's)
+``piles``               piles drawn until one annotates the task (the last is used: ``scene_index + piles - 1``)
+``pile_seed``           the seed of the used pile's accepted attempt (the ``scenes`` table's ``seed``)
+``pile_categories``     the pile's tools, in scene order
+``rectangle``           the chosen ``[x, y, h, w, theta]`` (px, rad); null when none
+``chosen_category``     what the policy believes it grasps ("" when no belief)
+``task_probability``    P(task | stable) of the choice (NaN for oracle and random)
+``stability``           P(stable) of the choice (NaN likewise)
+``detections``          objects detected (-1: the policy does not detect)
+``aimed_object``        scene index of the object seen under the rectangle's centre (-1 table)
+``aimed_category``      its category ("" for the table)
+``grasp_position``      the lifted grasp's centre, world, m (null without a grasp)
+``grasp_quaternion``    its gripper frame, world, (x, y, z, w)
+``opening``             pre-grasp opening, m
+``approach_stopped``    the guarded approach stopped early
+``stopped_by``          what it touched ("floor", a category, "")
+``held_object``         scene index of the object held, or the last to leave the pads (-1: none)
+``held_category``       its category
+``held``                lifted and held after the hold
+``rise``                rise of that object's centre of mass, m
+``label``               the grasps stage's task label of the held pose
+``nearest_task``        task of the nearest annotated grasp of the held object
+``nearest_distance``    its distance, m (see ``World.nearest_grasp``)
+``judged_by``           ``parts`` or ``nearest`` (models without part labels)
+``gsr_s``, ``gsr_t``    the outcome
+``reason``              "" or one of ``execute.REASONS``
+``picture``             the failure picture, relative to the run folder ("" on success)
+``seconds_pile``        dropping and rendering the piles (shared by the policies of a trial)
+``seconds_policy``      the policy's choice (inference for a checkpoint)
+``seconds_execute``     lifting, simulating and judging
+======================  =====================================================
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from togcrf.robot.protocol import NAMED_TASKS, PAPER_TABLE3, PAPER_TOTAL, TABLE_TASKS
+
+_FLOATS = pa.list_(pa.float64())
+
+#: The trial log's schema (see the module text).
+TRIAL_LOG = pa.schema([
+    ("policy", pa.string()), ("checkpoint", pa.string()), ("task", pa.string()), ("category", pa.string()),
+    ("repeat", pa.int32()), ("scene_index", pa.int64()), ("piles", pa.int32()), ("pile_seed", pa.int64()),
+    ("pile_categories", pa.list_(pa.string())), ("rectangle", _FLOATS), ("chosen_category", pa.string()),
+    ("task_probability", pa.float64()), ("stability", pa.float64()), ("detections", pa.int32()),
+    ("aimed_object", pa.int32()), ("aimed_category", pa.string()), ("grasp_position", _FLOATS),
+    ("grasp_quaternion", _FLOATS), ("opening", pa.float64()), ("approach_stopped", pa.bool_()),
+    ("stopped_by", pa.string()), ("held_object", pa.int32()), ("held_category", pa.string()), ("held", pa.bool_()),
+    ("rise", pa.float64()), ("label", pa.string()), ("nearest_task", pa.string()), ("nearest_distance", pa.float64()),
+    ("judged_by", pa.string()), ("gsr_s", pa.bool_()), ("gsr_t", pa.bool_()), ("reason", pa.string()),
+    ("picture", pa.string()), ("seconds_pile", pa.float64()),
+    ("seconds_policy", pa.float64()), ("seconds_execute", pa.float64()),
+])
+
+
+def write_log(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+    """Write trial rows as a Parquet file with :data:`TRIAL_LOG`'s columns."""
+    import pyarrow.parquet as pq  # noqa: PLC0415
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table = pa.Table.from_pylist([dict(row) for row in rows], schema=TRIAL_LOG)
+    pq.write_table(table, path)
+    return path
+
+
+def read_logs(paths: Sequence[Path]) -> list[dict[str, Any]]:
+    """Rows of one or more trial logs.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        A missing file, or one without the trial log's columns.
+    """
+    import pyarrow.parquet as pq  # noqa: PLC0415
+
+    rows: list[dict[str, Any]] = []
+    for path in paths:
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{path}: no trial log")
+        table = pq.read_table(path)
+        missing = sorted(set(TRIAL_LOG.names) - set(table.column_names))
+        if missing:
+            raise ValueError(f"{path}: not a robot trial log (missing columns {missing})")
+        rows.extend(table.to_pylist())
+    return rows
+
+
+def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Table III of one policy: per task and in total.
+
+    Returns
+    -------
+    dict
+        Per task of :data:`TABLE_TASKS` present: ``trials``, ``gsr_s``,
+        ``gsr_t`` (percent); ``Total``: the mean of the task rates, as the
+        paper's total; ``All trials``: pooled over every trial.
+    """
+    table: dict[str, dict[str, Any]] = {}
+    for task in TABLE_TASKS:
+        chosen = [row for row in rows if row["task"] == task]
+        if chosen:
+            table[task] = {"trials": len(chosen), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in chosen]),
+                           "gsr_t": 100.0 * np.mean([row["gsr_t"] for row in chosen])}
+    if table:
+        table["Total"] = {"trials": sum(entry["trials"] for entry in table.values()),
+                          "gsr_s": float(np.mean([entry["gsr_s"] for entry in table.values()])),
+                          "gsr_t": float(np.mean([entry["gsr_t"] for entry in table.values()]))}
+        table["All trials"] = {"trials": len(rows), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in rows]),
+                               "gsr_t": 100.0 * np.mean([row["gsr_t"] for row in rows])}
+    return table
+
+
+def policy_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """:func:`rates` of every policy in the rows, in the order they first appear."""
+    names = list(dict.fromkeys(row["policy"] for row in rows))
+    return {name: rates([row for row in rows if row["policy"] == name]) for name in names}
+
+
+def reason_counts(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per policy, how many trials ended for each reason ("" = success)."""
+    counts: dict[str, dict[str, int]] = {}
+    for row in rows:
+        entry = counts.setdefault(row["policy"], {})
+        entry[row["reason"]] = entry.get(row["reason"], 0) + 1
+    return counts
+
+
+def _cell(value: float | None) -> str:
+    return "" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.1f}"
+
+
+def format_table3(tables: Mapping[str, Mapping[str, Mapping[str, Any]]], paper: bool = True) -> str:
+    """Table III as Markdown: a GSR-S and a GSR-T column per policy, the paper's beside them.
+
+    The trial counts are in a column per policy when they differ from the paper's
+    (10 per tool task, 30 for "no task" and "hand over").
+    """
+    names = list(tables)
+    paper_names = list(PAPER_TABLE3) if paper else []
+    header = ["Task", *[f"{name} GSR-S" for name in names], *[f"paper {name} GSR-S" for name in paper_names],
+              *[f"{name} GSR-T" for name in names], *[f"paper {name} GSR-T" for name in paper_names], "trials"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for task in (*TABLE_TASKS, "Total", "All trials"):
+        if not any(task in table for table in tables.values()):
+            continue
+        trials = sorted({table[task]["trials"] for table in tables.values() if task in table})
+        cells = [task]
+        for metric, index in (("gsr_s", 0), ("gsr_t", 1)):
+            cells += [_cell(tables[name].get(task, {}).get(metric)) for name in names]
+            cells += [_cell(_paper_value(name, task, index)) for name in paper_names]
+        cells.append("/".join(str(count) for count in trials))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _paper_value(name: str, task: str, index: int) -> float | None:
+    if task == "Total":
+        return PAPER_TOTAL[name][index]
+    if task == "All trials":
+        values = PAPER_TABLE3[name]
+        weights = {task: 30 if task in NAMED_TASKS else 10 for task in values}
+        return sum(values[task][index] * weights[task] for task in values) / sum(weights.values())
+    return PAPER_TABLE3[name].get(task, (None, None))[index]
