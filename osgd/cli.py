@@ -3,7 +3,8 @@
 Every stage is a command that takes ``--config PIPELINE.toml``; ``osgd run``
 runs them all in order; ``osgd status`` shows what is built. Global options
 come before the command: ``osgd --data-dir /scratch/osgd --workers 8 run
-pipelines/default.toml``.
+pipelines/default.toml``; ``osgd --executor ray --ray-address auto run ...``
+runs the items on a Ray cluster (docs/scale-out.md).
 
 What goes wrong is said in one line per problem (the file, the key or value,
 what is allowed); items that fail are listed together at the end (stage,
@@ -30,7 +31,7 @@ from rich.text import Text
 
 from osgd.config import ConfigError, PipelineConfig, config_to_toml
 from osgd.errors import describe
-from osgd.executor import make_executor
+from osgd.executor import BACKENDS, Executor, ExecutorError, make_executor
 from osgd.pipeline import (
     COMMAND_STAGES,
     MissingInputError,
@@ -63,6 +64,8 @@ class _Global:
     data_dir: Path = Path("data")
     workers: int | None = None
     debug: bool = False
+    executor: str | None = None
+    ray_address: str | None = None
 
 
 @app.callback()
@@ -71,7 +74,19 @@ def main(
         Path, typer.Option(envvar="OSGD_DATA_DIR", help="Where shards and manifests are written.")
     ] = Path("data"),
     workers: Annotated[
-        int | None, typer.Option(min=1, help="Worker processes; default: one per core. 1 runs serially.")
+        int | None,
+        typer.Option(min=1, help="Worker processes; default: one per core. 1 runs serially. "
+                     "With --executor ray: the most items in flight (default: twice the cluster's CPUs)."),
+    ] = None,
+    executor: Annotated[
+        str | None,
+        typer.Option(envvar="OSGD_EXECUTOR", help="process (worker processes here) or ray (a Ray cluster); "
+                     "default: the config's executor.backend, else process."),
+    ] = None,
+    ray_address: Annotated[
+        str | None,
+        typer.Option(help="The Ray cluster to join: auto, HOST:6379 or ray://HOST:10001; default: the config's "
+                     "executor.ray_address, else RAY_ADDRESS, else a Ray instance on this machine."),
     ] = None,
     log_level: Annotated[
         str, typer.Option(help="debug, info, warning or error.", case_sensitive=False)
@@ -81,10 +96,14 @@ def main(
     level = getattr(logging, log_level.upper(), None)
     if not isinstance(level, int):
         raise typer.BadParameter(f"unknown log level {log_level!r}; use debug, info, warning or error")
+    if executor is not None and executor not in BACKENDS:
+        raise typer.BadParameter(f"unknown executor {executor!r}; use {' or '.join(BACKENDS)}")
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     _Global.data_dir = data_dir
     _Global.workers = workers
     _Global.debug = debug
+    _Global.executor = executor
+    _Global.ray_address = ray_address
 
 
 ConfigOption = Annotated[
@@ -115,13 +134,38 @@ def _load(config_path: Path, overrides: list[str] | None) -> PipelineConfig:
         raise  # unreachable: _fail exits
 
 
-def _store(writable: bool) -> ShardStore:
-    """The data dir's store, after checking it is a folder (and writable, when asked)."""
+def _store(writable: bool, absolute: bool = False) -> ShardStore:
+    """The data dir's store, after checking it is a folder (and writable, when asked).
+
+    ``absolute``: the store names the folder by its absolute path, as the
+    workers of a Ray cluster, started elsewhere, must.
+    """
     try:
         check_data_dir(_Global.data_dir, writable)
     except DataDirError as error:
         _fail(str(error))
-    return ShardStore(_Global.data_dir)
+    return ShardStore(_Global.data_dir.absolute() if absolute else _Global.data_dir)
+
+
+def _executor(config: PipelineConfig) -> Executor:
+    """The executor the options (else the config) ask for, started: a Ray cluster joined before anything runs."""
+    backend = _Global.executor or config.executor.backend
+    address = _Global.ray_address or config.executor.ray_address or None
+    executor = make_executor(_Global.workers, backend, address)
+    connect = getattr(executor, "connect", None)
+    if connect is not None:
+        try:
+            connect()
+        except ExecutorError as error:
+            _fail(str(error))
+    return executor
+
+
+def _close(executor: Executor) -> None:
+    """Let go of what the executor started (a local Ray instance)."""
+    close = getattr(executor, "close", None)
+    if close is not None:
+        close()
 
 
 def _bar_progress() -> tuple[Any, Any, Any]:
@@ -156,8 +200,8 @@ def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...],
     pending = [name for name in names if not stage_by_name(name).implemented]
     if pending:
         _fail(f"stage(s) {pending} not implemented yet")
-    store = _store(writable=True)
-    executor = make_executor(_Global.workers)
+    store = _store(writable=True, absolute=(_Global.executor or config.executor.backend) == "ray")
+    executor = _executor(config)
     if console.is_terminal:
         progress, on_stage, on_item = _bar_progress()
     else:
@@ -170,6 +214,8 @@ def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...],
         _fail(str(error))
     except OSError as error:  # writing the manifest: a full disk, a folder gone read-only
         _fail(write_problem(error))
+    finally:
+        _close(executor)
     for report in reports:
         _print_report(report, store)
     failures = [(report.stage, failure) for report in reports for failure in report.failures]

@@ -2,7 +2,9 @@
 
 A config has a ``[pipeline]`` section (``name``, ``seed``) and one section
 per stage, named after the stage (``[models]``, ``[grasps]``, ``[checks]``,
-``[scenes]``, ``[samples]``); a missing section means all defaults. Any value
+``[scenes]``, ``[samples]``); a missing section means all defaults. An
+optional ``[executor]`` section says where the items run
+(:class:`ExecutorSection`), which changes no shard. Any value
 can be overridden with ``section.key=value`` (the value is read as TOML, so
 ``3``, ``0.5``, ``true``, ``"text"`` and ``[1, 2]`` all work; a bare word is
 a string).
@@ -25,11 +27,11 @@ import os
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from osgd.stage import StageParams
 
@@ -56,6 +58,32 @@ class PipelineSection(BaseModel):
     seed: int = 0
 
 
+class ExecutorSection(BaseModel):
+    """The ``[executor]`` section: where the work items run, not what they build.
+
+    It enters no shard key and no manifest: the same pipeline built by any
+    executor gives the same shards. ``osgd --executor`` and
+    ``--ray-address`` override it.
+
+    Attributes
+    ----------
+    backend : str
+        ``"process"`` (local worker processes) or ``"ray"``.
+    ray_address : str
+        The Ray cluster to join; empty for ``RAY_ADDRESS`` or a local instance.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    backend: Literal["process", "ray"] = Field(
+        "process", description='where items run: "process" (worker processes on this machine) or "ray" (a Ray cluster)'
+    )
+    ray_address: str = Field(
+        "",
+        description='the Ray cluster to join ("auto", "HOST:6379", "ray://HOST:10001"); '
+        "empty: RAY_ADDRESS, else a Ray instance on this machine",
+    )
+
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """A loaded, validated pipeline config.
@@ -67,11 +95,14 @@ class PipelineConfig:
         Every stage's parameters, by stage name.
     path : Path or None
         The file it came from.
+    executor : ExecutorSection
+        Where the items run (not part of any key or manifest).
     """
 
     pipeline: PipelineSection
     params: dict[str, StageParams]
     path: Path | None = None
+    executor: ExecutorSection = field(default_factory=ExecutorSection)
 
 
 _VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
@@ -206,7 +237,7 @@ def build_config(
     loose = [name for name, value in document.items() if not isinstance(value, dict)]
     if loose:
         raise ConfigError(f"{origin}: top-level key(s) {loose} must sit inside a [section]")
-    allowed = {"pipeline", *stage_params}
+    allowed = {"pipeline", "executor", *stage_params}
     overridden: dict[str, dict[str, str]] = {}
     for override in overrides:
         section, key, value = parse_override(override)
@@ -222,6 +253,9 @@ def build_config(
     pipeline_values = sections.get("pipeline", {})
     pipeline_values.setdefault("name", Path(origin).stem if origin != "<config>" else "pipeline")
     pipeline = _validate(PipelineSection, pipeline_values, origin, "pipeline", overridden.get("pipeline", {}))
+    executor = _validate(
+        ExecutorSection, sections.get("executor", {}), origin, "executor", overridden.get("executor", {})
+    )
 
     params: dict[str, StageParams] = {}
     for name, params_class in stage_params.items():
@@ -234,7 +268,7 @@ def build_config(
                 if raw and not Path(raw).is_absolute():
                     values[field_name] = str((base_dir / raw).resolve())
         params[name] = _validate(params_class, values, origin, name, overridden.get(name, {}))
-    return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None)
+    return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None, executor)
 
 
 def load_config(
@@ -279,22 +313,28 @@ def _toml_value(value: Any) -> str:
 
 
 def config_to_toml(config: PipelineConfig) -> str:
-    """Every parameter of every stage as a commented TOML document.
+    """Every parameter of every stage, and the executor section, as a commented TOML document.
 
     Each key is preceded by its description; keys that are ``None`` (unset
     optional values) are written as comments. Loading the text back with
     :func:`build_config` gives an equal config.
     """
     lines = ["[pipeline]", f"name = {_toml_value(config.pipeline.name)}", f"seed = {config.pipeline.seed}"]
-    for stage_name, params in config.params.items():
-        lines += ["", f"[{stage_name}]"]
-        values = params.model_dump(mode="json")
-        for field_name, info in type(params).model_fields.items():
-            if info.description:
-                lines.append(f"# {info.description}")
-            value = values[field_name]
-            if value is None:
-                lines.append(f"# {field_name} = (unset)")
-            else:
-                lines.append(f"{field_name} = {_toml_value(value)}")
+    for section, values in (*config.params.items(), ("executor", config.executor)):
+        lines += ["", f"[{section}]", *_section_lines(values)]
     return "\n".join(lines) + "\n"
+
+
+def _section_lines(section: BaseModel) -> list[str]:
+    """The ``key = value`` lines of one section, each after its description."""
+    lines = []
+    values = section.model_dump(mode="json")
+    for field_name, info in type(section).model_fields.items():
+        if info.description:
+            lines.append(f"# {info.description}")
+        value = values[field_name]
+        if value is None:
+            lines.append(f"# {field_name} = (unset)")
+        else:
+            lines.append(f"{field_name} = {_toml_value(value)}")
+    return lines
