@@ -1,7 +1,10 @@
 """Benchmark of the checks stage: grasp trials per second, and the OSGD set.
 
 1. Trials per second on one core: the fixture tools (tests/helpers.py) with
-   grasps across their handles and bodies, run serially in this process.
+   grasps across their handles and bodies, run serially in this process,
+   first with the rigid pads of the check before issue #17 (the baseline),
+   then with the soft pads (both criteria come from one trial), and their
+   ratio.
 2. The whole shared OSGD set (``../shared/osgd-models``, skipped when
    absent): the models and grasps stages are run first (their shards are
    kept under ``--data-dir`` and reused on the next run, and not timed), then
@@ -43,8 +46,8 @@ def peak_memory_mib() -> tuple[float, float]:
             resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
 
 
-def bench_fixture_trials(count: int) -> None:
-    params = ChecksStageParams()
+def bench_fixture_trials(count: int, params: ChecksStageParams, label: str) -> float:
+    """Time ``count`` trials on one core; returns trials per second."""
     models = fixture_models()
     # Closing across each tool's thickness, approach from above, centres along the tool.
     quaternion = Rotation.from_matrix(np.column_stack([[0, 1, 0], [1, 0, 0], [0, 0, -1]])).as_quat()
@@ -60,9 +63,10 @@ def bench_fixture_trials(count: int) -> None:
         outcomes[result.fail_reason or "stable"] = outcomes.get(result.fail_reason or "stable", 0) + 1
         steps += result.sim_steps
     elapsed = time.perf_counter() - start
-    print(f"fixture tools: {count} trials in {elapsed:.2f} s on one core: {count / elapsed:.1f} trials/s, "
+    print(f"fixture tools, {label}: {count} trials in {elapsed:.2f} s on one core: {count / elapsed:.1f} trials/s, "
           f"{1000 * elapsed / count:.1f} ms/trial, {steps / count:.0f} steps/trial, "
           f"{1e6 * elapsed / max(steps, 1):.0f} us/step (all costs included); outcomes {outcomes}")
+    return count / elapsed
 
 
 def bench_osgd_set(data_dir: Path, workers: int) -> None:
@@ -101,7 +105,9 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, default=Path(tempfile.gettempdir()) / "osgd-bench-checks")
     parser.add_argument("--quick", action="store_true", help="fixture trials only")
     arguments = parser.parse_args()
-    bench_fixture_trials(arguments.trials)
+    baseline = bench_fixture_trials(arguments.trials, ChecksStageParams(pad_contact="rigid"), "rigid pads (before #17)")
+    soft = bench_fixture_trials(arguments.trials, ChecksStageParams(), "soft pads, lift and shake")
+    print(f"soft pads against rigid pads, same run: {soft / baseline:.2f}x the trials per second")
     if arguments.quick:
         pass
     elif OSGD_MODELS.is_dir():

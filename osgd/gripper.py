@@ -15,6 +15,41 @@ Right-handed, origin at the grasp centre (midway between the two finger pads):
 
 The default dimensions are close to a Franka Emika Panda hand (maximum
 opening 0.08 m, as ACRONYM's gripper; REFERENCE section 5).
+
+Finger pads
+-----------
+A real fingertip is a rubber patch, not a rigid box: pressed on an object it
+flattens into a contact patch that resists sliding (Coulomb friction) and
+twisting about the closing axis (torsional friction). The grasping textbooks
+call this a *soft-finger contact* (Murray, Li and Sastry, *A Mathematical
+Introduction to Robotic Manipulation*, 1994, section 5.2): a point contact
+with friction whose torque about the contact normal is bounded by
+``|tau| <= gamma * N``. For a patch of radius ``a`` under uniform pressure
+``gamma = (2/3) * mu * a`` (Johnson, *Contact Mechanics*, 1985, section 5.1,
+the torque of a sliding disc), which :meth:`Gripper.torsion_radius` gives.
+
+The pad data:
+
+- ``pad_radius`` 10 mm: the patch is the disc inscribed in the 20 mm wide
+  Franka Hand fingertip (Franka Emika, *Franka Hand product manual*:
+  fingertips 20 mm wide, 70 N continuous and 140 N peak force). Its
+  ``(2/3) a`` = 6.7 mm lies between a line contact across the pad (5 mm)
+  and the whole 20 x 20 mm pad pressed flat (7.7 mm);
+- ``pad_friction`` 1.0: pybullet multiplies the two bodies' coefficients, so
+  1.0 leaves the pair coefficient stored per object in the ``models`` table
+  (0.3 to 0.8 by material, ``osgd/models/categories.py``) in charge. The
+  payload rule of gripper makers is the same Coulomb law the checks tests
+  verify: Robotiq's *Hand-E instruction manual*, section 6, "W = 2 F Cf /
+  Sf", with Cf 0.3 tested for its silicone fingertips on oily steel;
+- ``pad_stiffness`` 4.7e5 N/m: a 2 mm rubber layer of Young's modulus 3 MPa
+  (Shore 60A) over the patch's area, ``k = E * pi * a**2 / t``; at 70 N the
+  pad gives 0.15 mm;
+- ``pad_damping`` 430 N s/m: about critical for the 0.1 kg simulated finger
+  on that spring, ``2 * sqrt(k * m)``;
+- ``pad_crown`` 0.5 mm: the patch stands this far proud of the finger's flat
+  face, a crowned pad, so that the contact sits at the patch and carries its
+  torsional friction (a flat rigid face on a flat face or a round shaft
+  touches at its corners or along a line instead).
 """
 
 from __future__ import annotations
@@ -50,6 +85,17 @@ class Gripper:
         Force limit of each finger when closing. The default is the Franka
         Emika Panda hand's rated continuous force (70 N; 140 N peak). At
         40 N the check stage dropped most grasps of objects over 0.5 kg.
+    pad_radius : float
+        Radius of each pad's contact patch, m.
+    pad_crown : float
+        How far the patch's centre stands proud of the finger's inner face, m.
+    pad_friction : float
+        Lateral friction coefficient of the pads (a multiplier of the
+        object's coefficient in pybullet).
+    pad_stiffness : float
+        Normal stiffness of a pad, N/m.
+    pad_damping : float
+        Normal damping of a pad, N s/m.
     """
 
     max_opening: float = 0.08
@@ -60,6 +106,34 @@ class Gripper:
     palm_thickness: float = 0.03
     clearance: float = 0.01
     grip_force: float = 70.0
+    pad_radius: float = 0.010
+    pad_crown: float = 0.0005
+    pad_friction: float = 1.0
+    pad_stiffness: float = 4.7e5
+    pad_damping: float = 430.0
+
+    def torsion_radius(self) -> float:
+        """The soft-finger torsional coefficient per unit friction coefficient, m.
+
+        A pad pressed with normal force ``N`` on an object of friction
+        coefficient ``mu`` resists a torque about the closing axis of at most
+        ``mu * torsion_radius() * N``: ``(2/3) * pad_radius``, a disc under
+        uniform pressure.
+        """
+        return 2.0 * self.pad_radius / 3.0
+
+    def torsional_limit(self, friction: float, grip_force: float | None = None) -> float:
+        """Largest torque about the closing axis the two pads hold, N m.
+
+        Parameters
+        ----------
+        friction : float
+            The pad-object friction coefficient.
+        grip_force : float, optional
+            Normal force of each pad, N; the gripper's ``grip_force`` by default.
+        """
+        force = self.grip_force if grip_force is None else grip_force
+        return 2.0 * friction * self.pad_friction * self.torsion_radius() * force
 
     def boxes(self, opening: float) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """Collision boxes of the gripper pre-shaped to ``opening``.

@@ -96,7 +96,12 @@ CHECKS = pa.schema(
     [
         pa.field("model_id", pa.string(), nullable=False),
         pa.field("grasp_id", pa.int32(), nullable=False),
-        pa.field("stable", pa.bool_(), nullable=False),
+        pa.field("stable", pa.bool_(), nullable=False,
+                 metadata={"doc": "held under the stage's criterion (checks.criterion): lift_stable or shake_stable"}),
+        pa.field("lift_stable", pa.bool_(), nullable=False,
+                 metadata={"doc": "closed, lifted 10 cm and held: the paper's check"}),
+        pa.field("shake_stable", pa.bool_(), nullable=False,
+                 metadata={"doc": "held through three linear and three rotational shakes as well (ACRONYM)"}),
         pa.field("fail_reason", pa.string(), nullable=False,
                  metadata={"doc": "'' | approach_collision | empty_close | slipped_on_lift | dropped_on_shake"}),
         pa.field("slip_distance", pa.float64(), nullable=False,

@@ -341,6 +341,8 @@ def test_show_grasps_by_task_and_by_stability(fixture_run, tmp_path):
         "model_id": [hammer["model_id"]] * count,
         "grasp_id": hammer_grasps.column("grasp_id").to_pylist()[:count],
         "stable": [index % 2 == 0 for index in range(count)],
+        "lift_stable": [index % 2 == 0 for index in range(count)],
+        "shake_stable": [index % 2 == 0 for index in range(count)],
         "fail_reason": ["" if index % 2 == 0 else "slipped_on_lift" for index in range(count)],
         "slip_distance": [0.0] * count, "slip_rotation": [0.0] * count, "final_opening": [0.02] * count,
         "sim_steps": [100] * count,

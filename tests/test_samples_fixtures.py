@@ -98,10 +98,11 @@ def write_fixture_inputs(store: ShardStore, scenes: list[dict] | None = None) ->
     grasps = hammer_grasps(hammer["model_id"]) + screwdriver_grasps(screwdriver["model_id"]) + block_grasps(
         block["model_id"])
     store.write("grasps", "b" * 64, "fixture", pa.Table.from_pylist(grasps, schema=GRASPS))
+    held = [not (row["model_id"] == hammer["model_id"] and row["grasp_id"] == 13) for row in grasps]
     checks = [{"model_id": row["model_id"], "grasp_id": row["grasp_id"],
-               "stable": not (row["model_id"] == hammer["model_id"] and row["grasp_id"] == 13),
+               "stable": stable, "lift_stable": stable, "shake_stable": stable,
                "fail_reason": "", "slip_distance": 0.0, "slip_rotation": 0.0, "final_opening": row["width"],
-               "sim_steps": 100} for row in grasps]
+               "sim_steps": 100} for row, stable in zip(grasps, held, strict=True)]
     store.write("checks", "c" * 64, "fixture", pa.Table.from_pylist(checks, schema=CHECKS))
     if scenes is None:
         scenes = [

@@ -62,7 +62,9 @@ class ToyStage(Stage):
             {
                 "model_id": pa.array([f"m{index}"] * rows),
                 "grasp_id": pa.array(np.arange(rows, dtype=np.int32)),
-                "stable": pa.array(rng.random(rows) > 0.5),
+                "stable": pa.array(stable := rng.random(rows) > 0.5),
+                "lift_stable": pa.array(stable),
+                "shake_stable": pa.array(stable),
                 "fail_reason": pa.array([""] * rows),
                 "slip_distance": pa.array(rng.random(rows) * params["scale"]),
                 "slip_rotation": pa.array(rng.random(rows)),

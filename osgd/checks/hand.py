@@ -23,6 +23,22 @@ real hand's palm does not shrink as it closes.
 The hand is moved by a fixed constraint between its base and the world
 (:meth:`SimulatedHand.move_to`), force-limited so that a stuck hand stalls
 instead of tunnelling through the object.
+
+Pads
+----
+Two pad models (``pad_contact``):
+
+- ``"soft"`` (the default): the soft-finger contact of :mod:`osgd.gripper`.
+  Each finger is the finger box with its inner face recessed by
+  ``pad_crown`` and a crowned patch of ``pad_radius`` on it (one convex
+  hull), whose apex lies where the flat face was, so openings are unchanged.
+  The pad's spinning friction is :meth:`Gripper.torsion_radius`: pybullet
+  combines it with the object's lateral friction into the torsional limit
+  ``mu * torsion_radius * N`` per contact, the soft-finger law (the tests in
+  ``tests/test_checks_physics.py`` measure it). Contact stiffness and damping
+  give the pad its compliance.
+- ``"rigid"``: plain finger boxes, no torsional friction, the solver's rigid
+  contact: the check before issue #17, kept to compare against.
 """
 
 from __future__ import annotations
@@ -123,14 +139,87 @@ class SimulatedHand:
         return np.asarray(position, dtype=np.float64), np.asarray(quaternion, dtype=np.float64)
 
 
+#: Pad models of :func:`create_hand`.
+PAD_CONTACTS: tuple[str, ...] = ("soft", "rigid")
+
+#: pybullet's collision margin around a convex hull shape, m: the closest
+#: distance from a hull is 1 mm shorter than from the box primitive of the
+#: same vertices (a box's margin lies inside its extents). The crowned finger
+#: is built this much smaller so that its contact surface is the gripper's.
+CONVEX_HULL_MARGIN = 0.001
+
+
+def crowned_finger_vertices(
+    gripper: Gripper, half_extents: np.ndarray, inner_sign: float, margin: float = 0.0
+) -> np.ndarray:
+    """Vertices whose convex hull is a finger with a crowned pad.
+
+    Parameters
+    ----------
+    gripper : Gripper
+        Gives ``pad_radius`` and ``pad_crown``.
+    half_extents : (3,) float
+        Half extents of the finger box, m (link frame at the box's centre).
+    inner_sign : float
+        ``+1`` when the pad faces ``+x`` (finger A), ``-1`` for finger B.
+    margin : float
+        Shrink every face by this much, m (the collision margin the physics
+        engine adds back).
+
+    Returns
+    -------
+    (V, 3) float64
+        The box's corners with its inner face moved back by ``pad_crown``,
+        then rings of a spherical cap whose apex is at the box's original
+        inner face; the cap's radius is ``pad_radius``, or the face's half
+        size where that is smaller. Everything is ``margin`` smaller.
+    """
+    # The crown stays within the finger's face; the torsional law uses pad_radius whatever its size.
+    crown, radius = gripper.pad_crown, min(gripper.pad_radius, float(min(half_extents[1:])) - margin)
+    inner = half_extents[0] - margin
+    corners = np.array([[x, y, z] for x in (-inner, inner - crown) for y in (-1, 1) for z in (-1, 1)],
+                       dtype=np.float64)
+    corners[:, 1:] *= half_extents[1:] - margin
+    sphere = (radius**2 + crown**2) / (2 * crown)
+    rings = [np.array([[inner, 0.0, 0.0]])]
+    angles = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    for ring_radius in np.linspace(radius / 4, radius, 4):
+        height = np.sqrt(sphere**2 - ring_radius**2) - (sphere - crown)
+        rings.append(np.column_stack([
+            np.full(len(angles), inner - crown + height),
+            ring_radius * np.cos(angles), ring_radius * np.sin(angles),
+        ]))
+    vertices = np.concatenate([corners, *rings])
+    vertices[:, 0] *= inner_sign
+    return vertices
+
+
+def _finger_shape(client: int, gripper: Gripper, half: np.ndarray, inner_sign: float, pad_contact: str) -> int:
+    if pad_contact == "rigid":
+        return pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=client)
+    vertices = crowned_finger_vertices(gripper, half, inner_sign, CONVEX_HULL_MARGIN)
+    return pybullet.createCollisionShape(pybullet.GEOM_MESH, vertices=vertices.tolist(), physicsClientId=client)
+
+
+def _pad_dynamics(client: int, body: int, finger: int, gripper: Gripper, friction: float, pad_contact: str) -> None:
+    if pad_contact == "rigid":
+        pybullet.changeDynamics(body, finger, lateralFriction=friction, physicsClientId=client)
+        return
+    pybullet.changeDynamics(
+        body, finger, lateralFriction=friction, spinningFriction=gripper.torsion_radius(), rollingFriction=0.0,
+        contactStiffness=gripper.pad_stiffness, contactDamping=gripper.pad_damping, physicsClientId=client,
+    )
+
+
 def create_hand(
     client: int,
     gripper: Gripper,
     *,
     palm_mass: float,
     finger_mass: float,
-    finger_friction: float,
+    finger_friction: float | None = None,
     constraint_force: float,
+    pad_contact: str = "soft",
 ) -> SimulatedHand:
     """Build the hand at the world origin, fully open.
 
@@ -142,12 +231,17 @@ def create_hand(
         The one gripper definition; every box comes from ``gripper.boxes``.
     palm_mass, finger_mass : float
         kg.
-    finger_friction : float
+    finger_friction : float, optional
         Lateral friction of the pads; pybullet multiplies it with the
-        object's coefficient.
+        object's coefficient. Default: the gripper's ``pad_friction``.
     constraint_force : float
         Force limit of the constraint that moves the hand, N.
+    pad_contact : {"soft", "rigid"}
+        The pad model (module docstring).
     """
+    if pad_contact not in PAD_CONTACTS:
+        raise ValueError(f"pad_contact {pad_contact!r}: expected one of {', '.join(PAD_CONTACTS)}")
+    friction = gripper.pad_friction if finger_friction is None else finger_friction
     boxes = {name: (centre, half) for name, centre, half in gripper.boxes(gripper.max_opening)}
     palm_centre, palm_half = boxes["palm"]
     palm_shape = pybullet.createCollisionShape(
@@ -155,10 +249,9 @@ def create_hand(
         physicsClientId=client,
     )
     finger_shapes, finger_positions = [], []
-    for name in ("finger_a", "finger_b"):
+    for name, inner_sign in (("finger_a", 1.0), ("finger_b", -1.0)):
         centre, half = boxes[name]
-        finger_shapes.append(pybullet.createCollisionShape(
-            pybullet.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=client))
+        finger_shapes.append(_finger_shape(client, gripper, half, inner_sign, pad_contact))
         finger_positions.append(centre.tolist())
     body = pybullet.createMultiBody(
         baseMass=palm_mass,
@@ -181,9 +274,9 @@ def create_hand(
     )
     for finger in (FINGER_A, FINGER_B):
         pybullet.changeDynamics(
-            body, finger, jointLowerLimit=0.0, jointUpperLimit=gripper.max_opening / 2,
-            lateralFriction=finger_friction, physicsClientId=client,
+            body, finger, jointLowerLimit=0.0, jointUpperLimit=gripper.max_opening / 2, physicsClientId=client,
         )
+        _pad_dynamics(client, body, finger, gripper, friction, pad_contact)
         # Velocity motors hold the joints still until a trial drives them.
         pybullet.setJointMotorControl2(body, finger, pybullet.VELOCITY_CONTROL, targetVelocity=0.0,
                                        force=gripper.grip_force, physicsClientId=client)

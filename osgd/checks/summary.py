@@ -21,24 +21,33 @@ from osgd.taxonomy import CATEGORIES, TASKS
 
 @dataclass
 class AcceptanceCounts:
-    """Trials and stable trials per category, per task and per failure reason.
+    """Trials and held trials per category, per task and per failure reason.
 
     Attributes
     ----------
-    trials, stable : Counter of (category, task) -> int
+    trials, stable, lift, shake : Counter of (category, task) -> int
+        All trials, and those held under the stage's criterion, under
+        ``lift`` and under ``shake``.
     fail_reasons : Counter of str -> int
     """
 
     trials: Counter[tuple[str, str]] = field(default_factory=Counter)
     stable: Counter[tuple[str, str]] = field(default_factory=Counter)
+    lift: Counter[tuple[str, str]] = field(default_factory=Counter)
+    shake: Counter[tuple[str, str]] = field(default_factory=Counter)
     fail_reasons: Counter[str] = field(default_factory=Counter)
 
-    def rate(self, category: str | None = None, task: str | None = None) -> tuple[int, int]:
-        """(stable, trials) summed over the keys matching ``category`` and ``task`` (None: any)."""
+    def rate(self, category: str | None = None, task: str | None = None,
+             criterion: str = "stable") -> tuple[int, int]:
+        """(held, trials) summed over the keys matching ``category`` and ``task`` (None: any).
+
+        ``criterion`` is ``"stable"`` (the stage's), ``"lift"`` or ``"shake"``.
+        """
         def matches(key: tuple[str, str]) -> bool:
             return (category is None or key[0] == category) and (task is None or key[1] == task)
 
-        return (sum(value for key, value in self.stable.items() if matches(key)),
+        held: Counter[tuple[str, str]] = getattr(self, criterion)
+        return (sum(value for key, value in held.items() if matches(key)),
                 sum(value for key, value in self.trials.items() if matches(key)))
 
 
@@ -92,25 +101,29 @@ def acceptance_counts(
             grasps = store.read("grasps", key, columns=["model_id", "grasp_id", "task"])
             tasks.update(zip(zip(grasps.column("model_id").to_pylist(), grasps.column("grasp_id").to_pylist(),
                                  strict=True), grasps.column("task").to_pylist(), strict=True))
-        checks = store.read("checks", record.key, columns=["model_id", "grasp_id", "stable", "fail_reason"])
-        for model_id, grasp_id, stable, reason in zip(
-            *(checks.column(name).to_pylist() for name in ("model_id", "grasp_id", "stable", "fail_reason")),
-            strict=True,
+        columns = ("model_id", "grasp_id", "stable", "lift_stable", "shake_stable", "fail_reason")
+        checks = store.read("checks", record.key, columns=list(columns))
+        for model_id, grasp_id, stable, lift, shake, reason in zip(
+            *(checks.column(name).to_pylist() for name in columns), strict=True,
         ):
             key = (categories.get(model_id, "?"), tasks.get((model_id, grasp_id), "?"))
             counts.trials[key] += 1
             counts.stable[key] += int(stable)
+            counts.lift[key] += int(lift)
+            counts.shake[key] += int(shake)
             if reason:
                 counts.fail_reasons[reason] += 1
     return counts
 
 
 def _table(title: str, names: Sequence[str], counts: AcceptanceCounts, by: str) -> list[str]:
-    lines = [title, f"  {'':<14}{'trials':>8}{'stable':>8}{'rate':>8}"]
+    lines = [title, f"  {'':<14}{'trials':>8}{'stable':>8}{'lift':>8}{'shake':>8}"]
     for name in names:
         stable, trials = counts.rate(**{by: name})
         if trials:
-            lines.append(f"  {name:<14}{trials:>8}{stable:>8}{100 * stable / trials:>7.1f}%")
+            lift, shake = (counts.rate(**{by: name}, criterion=criterion)[0] for criterion in ("lift", "shake"))
+            lines.append(f"  {name:<14}{trials:>8}{stable:>8}{100 * lift / trials:>7.1f}%"
+                         f"{100 * shake / trials:>7.1f}%")
     return lines
 
 
@@ -121,7 +134,9 @@ def format_acceptance(counts: AcceptanceCounts) -> str:
         return "checks: no grasps tried"
     categories = [*CATEGORIES, *sorted({key[0] for key in counts.trials} - set(CATEGORIES))]
     tasks = [*TASKS, *sorted({key[1] for key in counts.trials} - set(TASKS))]
-    lines = [f"checks: {stable} of {trials} grasps stable ({100 * stable / trials:.1f}%)"]
+    lift, shake = (counts.rate(criterion=criterion)[0] for criterion in ("lift", "shake"))
+    lines = [f"checks: {stable} of {trials} grasps stable ({100 * stable / trials:.1f}%); "
+             f"lift {100 * lift / trials:.1f}%, shake {100 * shake / trials:.1f}%"]
     lines += _table("per category", categories, counts, "category")
     lines += _table("per task", tasks, counts, "task")
     if counts.fail_reasons:

@@ -20,12 +20,15 @@ GraspGen (REFERENCE section 5) in a world with no floor:
    holds still. The object's pose relative to the hand after closing is the
    reference of all slip measures; if the object is no longer touched by
    both pads, or has slipped more than ``max_slip_distance`` /
-   ``max_slip_rotation``, the trial ends as ``slipped_on_lift``.
+   ``max_slip_rotation``, the trial ends as ``slipped_on_lift``. The
+   outcome here is the ``lift`` criterion (the paper's check).
 4. **Shake.** Three linear shakes (one sine period of ``shake_distance``
    amplitude along each axis of a random frame) then three rotational ones
    (``shake_angle`` about each axis of the same frame, through the grasp
    centre). The same criterion judged at the end (and every few steps, to
-   stop early) gives ``dropped_on_shake``; otherwise the grasp is stable.
+   stop early) gives ``dropped_on_shake``; otherwise the grasp holds under
+   the ``shake`` criterion (ACRONYM's) too. The stage's ``criterion`` says
+   which of the two ``stable`` means.
 
 World frame: the grasp centre is at the origin with the approach pointing
 down (world ``-z``), the usual top-down pick, so gravity pulls the object
@@ -78,11 +81,19 @@ class TrialResult:
     Attributes
     ----------
     stable : bool
+        The outcome under the stage's ``criterion``: ``lift_stable`` or
+        ``shake_stable``.
+    lift_stable : bool
+        Closed, lifted and held: the paper's check.
+    shake_stable : bool
+        Held through the shakes as well (implies ``lift_stable``).
     fail_reason : str
-        ``""`` or one of :data:`FAIL_REASONS`.
+        ``""`` or one of :data:`FAIL_REASONS`: the phase where the full
+        trial (through the shakes) failed.
     slip_distance : float
         Displacement of the object's centre of mass relative to the hand
-        since the fingers closed, m (0 when the trial ended before closing).
+        since the fingers closed, at the end of the trial, m (0 when the
+        trial ended before closing).
     slip_rotation : float
         Rotation of the object relative to the hand since the fingers
         closed, rad.
@@ -93,6 +104,8 @@ class TrialResult:
     """
 
     stable: bool
+    lift_stable: bool
+    shake_stable: bool
     fail_reason: str
     slip_distance: float
     slip_rotation: float
@@ -113,8 +126,9 @@ def trial_client() -> int:
     """
     global _CLIENT
     if _CLIENT is None or not pybullet.isConnected(_CLIENT):
+        if _CLIENT is None:  # one exit handler per process, however often it reconnects
+            atexit.register(_disconnect)
         _CLIENT = pybullet.connect(pybullet.DIRECT)
-        atexit.register(_disconnect)
     return _CLIENT
 
 
@@ -197,8 +211,12 @@ class _Trial:
 
     def result(self, fail_reason: str) -> TrialResult:
         distance, rotation = self.slip()
+        lift_stable = fail_reason in ("", "dropped_on_shake")
+        shake_stable = not fail_reason
         return TrialResult(
-            stable=not fail_reason,
+            stable=lift_stable if self.params.criterion == "lift" else shake_stable,
+            lift_stable=lift_stable,
+            shake_stable=shake_stable,
             fail_reason=fail_reason,
             slip_distance=distance,
             slip_rotation=rotation,
@@ -249,6 +267,79 @@ def _shake_targets(
     return targets
 
 
+def _setup_world(client: int, params: ChecksStageParams) -> None:
+    pybullet.resetSimulation(physicsClientId=client)
+    pybullet.setPhysicsEngineParameter(
+        fixedTimeStep=params.timestep, numSolverIterations=params.solver_iterations,
+        deterministicOverlappingPairs=1, physicsClientId=client,
+    )
+    if params.contact_erp is not None:
+        pybullet.setPhysicsEngineParameter(contactERP=params.contact_erp, physicsClientId=client)
+    pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
+
+
+def _place_object(
+    client: int, model: Mapping[str, Any], grasp_position: np.ndarray, grasp_quaternion: np.ndarray,
+    params: ChecksStageParams,
+) -> ObjectBody:
+    """The object where the grasp puts it relative to the hand at the world origin.
+
+    With soft pads the object's own rolling and spinning friction (the
+    models table's, tuned for piles on a table) is set to zero, so that the
+    torsional friction in the hand is the pads' alone.
+    """
+    # Object pose in the world: (hand in world) * (grasp in object)^-1.
+    object_position, object_quaternion = _compose(
+        np.zeros(3), GRASP_QUATERNION_IN_WORLD,
+        *_invert(np.array(grasp_position, dtype=np.float64), np.array(grasp_quaternion, dtype=np.float64)),
+    )
+    body = create_object_body(client, model, object_position, object_quaternion)
+    if params.pad_contact == "soft":
+        pybullet.changeDynamics(body.body_id, -1, rollingFriction=0.0, spinningFriction=0.0, physicsClientId=client)
+    return body
+
+
+def _close(trial: _Trial, grip_force: float) -> bool:
+    """Close the fingers until still; whether both pads then touch the object."""
+    params = trial.params
+    trial.hand.close_fingers(params.close_speed, grip_force)
+    still_steps = 0
+    for _ in range(_steps(params.close_duration, params.timestep)):
+        trial.step()
+        still_steps = still_steps + 1 if trial.hand.finger_speed() < params.settle_speed else 0
+        if still_steps >= 3:
+            break
+    return trial.gripped()
+
+
+def _lift(trial: _Trial) -> bool:
+    """Gravity on, lift the hand and hold it still; whether the object is held."""
+    params = trial.params
+    pybullet.setGravity(0.0, 0.0, -params.gravity, physicsClientId=trial.client)
+    lift_steps = _steps(params.lift_duration, params.timestep)
+    for index in range(1, lift_steps + 1):
+        # Smooth (cosine) profile: no jump in the hand's commanded velocity.
+        fraction = (1 - np.cos(np.pi * index / lift_steps)) / 2
+        trial.hand.move_to(np.array([0.0, 0.0, fraction * params.lift_height]), GRASP_QUATERNION_IN_WORLD)
+        trial.step()
+    for _ in range(_steps(params.hold_duration, params.timestep) if params.hold_duration > 0 else 0):
+        trial.step()
+    return trial.held()
+
+
+def _shake(trial: _Trial, rng: np.random.Generator) -> bool:
+    """The six shakes about the lifted pose; whether the object is still held."""
+    lifted_position = np.array([0.0, 0.0, trial.params.lift_height])
+    for positions, quaternions in _shake_targets(lifted_position, GRASP_QUATERNION_IN_WORLD, trial.params, rng):
+        for index, (position, quaternion) in enumerate(zip(positions, quaternions, strict=True), start=1):
+            trial.hand.move_to(position, quaternion)
+            trial.step()
+            if index % _HOLD_CHECK_INTERVAL == 0 and not trial.gripped():
+                return False
+    trial.hand.move_to(lifted_position, GRASP_QUATERNION_IN_WORLD)
+    return trial.held()
+
+
 def run_trial(
     model: Mapping[str, Any],
     grasp_position: np.ndarray,
@@ -259,7 +350,7 @@ def run_trial(
     rng: np.random.Generator,
     client: int | None = None,
 ) -> TrialResult:
-    """Simulate one grasp of one model.
+    """Simulate one grasp of one model: both criteria in one trial.
 
     Parameters
     ----------
@@ -282,67 +373,27 @@ def run_trial(
     Returns
     -------
     TrialResult
+        The ``lift`` outcome is decided after the hold; the shakes run only
+        for grasps that pass it.
     """
     client = trial_client() if client is None else client
-    pybullet.resetSimulation(physicsClientId=client)
-    pybullet.setPhysicsEngineParameter(
-        fixedTimeStep=params.timestep, numSolverIterations=params.solver_iterations,
-        deterministicOverlappingPairs=1, physicsClientId=client,
-    )
-    if params.contact_erp is not None:
-        pybullet.setPhysicsEngineParameter(contactERP=params.contact_erp, physicsClientId=client)
-    pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
-    grip_force = gripper.grip_force if params.grip_force is None else params.grip_force
+    _setup_world(client, params)
     hand = create_hand(
         client, gripper, palm_mass=params.palm_mass, finger_mass=params.finger_mass,
-        finger_friction=params.finger_friction, constraint_force=params.hand_force,
+        finger_friction=params.finger_friction, constraint_force=params.hand_force, pad_contact=params.pad_contact,
     )
-    hand_position = np.zeros(3)
-    hand_quaternion = GRASP_QUATERNION_IN_WORLD
-    # Object pose in the world: (hand in world) * (grasp in object)^-1.
-    object_position, object_quaternion = _compose(
-        hand_position, hand_quaternion,
-        *_invert(np.array(grasp_position, dtype=np.float64), np.array(grasp_quaternion, dtype=np.float64)),
-    )
-    body = create_object_body(client, model, object_position, object_quaternion)
+    body = _place_object(client, model, grasp_position, grasp_quaternion, params)
     trial = _Trial(client, hand, body, params)
     opening = float(np.clip(width, 0.0, gripper.max_opening))
 
-    if _approach_collides(trial, hand_position, hand_quaternion, opening):
+    if _approach_collides(trial, np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening):
         return trial.result("approach_collision")
-    hand.reset(hand_position, hand_quaternion, opening)
-
-    hand.close_fingers(params.close_speed, grip_force)
-    still_steps = 0
-    for _ in range(_steps(params.close_duration, params.timestep)):
-        trial.step()
-        still_steps = still_steps + 1 if hand.finger_speed() < params.settle_speed else 0
-        if still_steps >= 3:
-            break
-    if not trial.gripped():
+    hand.reset(np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening)
+    if not _close(trial, gripper.grip_force if params.grip_force is None else params.grip_force):
         return trial.result("empty_close")
     trial.reference = trial.object_in_hand()
-
-    pybullet.setGravity(0.0, 0.0, -params.gravity, physicsClientId=client)
-    lift_steps = _steps(params.lift_duration, params.timestep)
-    for index in range(1, lift_steps + 1):
-        # Smooth (cosine) profile: no jump in the hand's commanded velocity.
-        fraction = (1 - np.cos(np.pi * index / lift_steps)) / 2
-        hand.move_to(hand_position + np.array([0.0, 0.0, fraction * params.lift_height]), hand_quaternion)
-        trial.step()
-    for _ in range(_steps(params.hold_duration, params.timestep) if params.hold_duration > 0 else 0):
-        trial.step()
-    if not trial.held():
+    if not _lift(trial):
         return trial.result("slipped_on_lift")
-
-    lifted_position = hand_position + np.array([0.0, 0.0, params.lift_height])
-    for positions, quaternions in _shake_targets(lifted_position, hand_quaternion, params, rng):
-        for index, (position, quaternion) in enumerate(zip(positions, quaternions, strict=True), start=1):
-            hand.move_to(position, quaternion)
-            trial.step()
-            if index % _HOLD_CHECK_INTERVAL == 0 and not trial.gripped():
-                return trial.result("dropped_on_shake")
-    hand.move_to(lifted_position, hand_quaternion)
-    if not trial.held():
+    if not _shake(trial, rng):
         return trial.result("dropped_on_shake")
     return trial.result("")

@@ -239,16 +239,6 @@ class Execution:
     steps: int = 0
 
 
-def pad_friction(checks: Any) -> float:
-    """The pads' lateral friction of the checks stage: its ``finger_friction``, else the gripper's pads' (1.0)."""
-    if checks.finger_friction is not None:
-        return float(checks.finger_friction)
-    import osgd.gripper  # noqa: PLC0415
-
-    pads = getattr(osgd.gripper, "PANDA_PADS", None)
-    return float(pads.friction) if pads is not None else 1.0
-
-
 class _Scene:
     """The pybullet world of one execution: floor, walls, pile and hand."""
 
@@ -273,7 +263,8 @@ class _Scene:
         checks = self.checks
         self.grip_force = world.gripper.grip_force if checks.grip_force is None else checks.grip_force
         self.hand = create_hand(client, world.gripper, palm_mass=checks.palm_mass, finger_mass=checks.finger_mass,
-                                finger_friction=pad_friction(checks), constraint_force=checks.hand_force)
+                                finger_friction=checks.finger_friction, constraint_force=checks.hand_force,
+                                pad_contact=checks.pad_contact)
         # Out of the way while the pile settles.
         self.hand.reset(grasp.position + np.array([0.0, 0.0, 1.0]), grasp.quaternion, grasp.opening)
 
