@@ -53,7 +53,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from helpers import OSGD_MODELS, _cylinder_x, model_row  # noqa: E402
+from helpers import OSGD_MODELS, bar_mesh, tool_of_mass  # noqa: E402
 
 from osgd.checks.calibration import FRICTIONS, coulomb_probe, torsion_probe  # noqa: E402
 from osgd.checks.params import ChecksStageParams  # noqa: E402
@@ -213,20 +213,16 @@ def physics() -> None:
         params = ChecksStageParams(pad_contact=pad_contact)
         for mass in (0.2, 1.0):
             for friction in FRICTIONS:
-                box = model_row("probe/box", "knife", [("handle", trimesh.creation.box(extents=[0.04] * 3))],
-                                density=mass / 0.04**3, friction=(friction, 0.01, 0.01))
+                box = tool_of_mass("probe/box", trimesh.creation.box(extents=[0.04] * 3), mass, friction)
                 probe = coulomb_probe(box, friction, params, PANDA, 0.04)
                 print(f"| Coulomb, 4 cm box | {pad_contact} | {mass} | {friction} | {probe.expected:.2f} | "
                       f"{probe.measured:.2f} | {100 * probe.error:+.1f} % |")
-        sections = {"square bar": trimesh.creation.box(extents=[0.2, 0.015, 0.015]),
-                    "round rod": _cylinder_x(0.0075, 0.2, [0.0, 0.0, 0.0])}
-        for section, mesh in sections.items():
+        for section, label in (("square", "square bar"), ("round", "round rod")):
             for mass in (0.3, 0.6):
                 for friction in FRICTIONS:
-                    bar = model_row("probe/bar", "knife", [("handle", mesh)], density=mass / mesh.volume,
-                                    friction=(friction, 0.01, 0.01))
+                    bar = tool_of_mass("probe/bar", bar_mesh(section), mass, friction)
                     probe = torsion_probe(bar, friction, 0.04, params, PANDA, 0.015)
-                    print(f"| torsion, 1.5 cm {section} held 4 cm off | {pad_contact} | {mass} | {friction} | "
+                    print(f"| torsion, 1.5 cm {label} held 4 cm off | {pad_contact} | {mass} | {friction} | "
                           f"{probe.expected:.2f} | {probe.measured:.2f} | {100 * probe.error:+.1f} % |")
 
 

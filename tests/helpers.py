@@ -105,6 +105,18 @@ def model_row(
     }
 
 
+def tool_of_mass(name: str, mesh: trimesh.Trimesh, mass: float, friction: float) -> dict:
+    """A one-part ``models`` row (a handle) of ``mesh`` weighing ``mass`` kg with lateral ``friction``."""
+    return model_row(name, "knife", [("handle", mesh)], density=mass / mesh.volume, friction=(friction, 0.01, 0.01))
+
+
+def bar_mesh(section: str, length: float = 0.2, thickness: float = 0.015) -> trimesh.Trimesh:
+    """A bar along x, centred on the origin: a ``"square"`` or ``"round"`` section ``thickness`` across."""
+    if section == "round":
+        return _cylinder_x(thickness / 2, length, [0.0, 0.0, 0.0])
+    return _box([length, thickness, thickness], [0.0, 0.0, 0.0])
+
+
 def models_table(rows: list[dict]) -> pa.Table:
     """Rows as a table in the ``models`` schema."""
     return pa.Table.from_pylist(rows, schema=MODELS)

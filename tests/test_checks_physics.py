@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 import trimesh
-from helpers import _cylinder_x, model_row
+from helpers import bar_mesh, tool_of_mass
 from test_checks import ACROSS_Y, trial
 
 from osgd.checks.calibration import FRICTIONS, coulomb_probe, torsion_probe
@@ -24,9 +24,7 @@ TOLERANCE = 0.15
 
 
 def box_model(extents: list[float], mass: float, friction: float) -> dict:
-    mesh = trimesh.creation.box(extents=extents)
-    return model_row("test/box", "knife", [("handle", mesh)], density=mass / mesh.volume,
-                     friction=(friction, 0.01, 0.01))
+    return tool_of_mass("test/box", trimesh.creation.box(extents=extents), mass, friction)
 
 
 @pytest.mark.parametrize("mass", [0.2, 1.0])
@@ -37,12 +35,6 @@ def test_a_held_box_slips_exactly_when_the_friction_is_below_its_weight(mass: fl
     assert abs(probe.error) <= TOLERANCE, probe
 
 
-def round_bar(mass: float, friction: float) -> dict:
-    mesh = _cylinder_x(0.0075, 0.2, [0.0, 0.0, 0.0])
-    return model_row("test/rod", "knife", [("handle", mesh)], density=mass / mesh.volume,
-                     friction=(friction, 0.01, 0.01))
-
-
 @pytest.mark.parametrize("mass", [0.3, 0.6])
 @pytest.mark.parametrize("friction", FRICTIONS)
 @pytest.mark.parametrize("section", ["square", "round"])
@@ -50,9 +42,8 @@ def test_a_bar_held_off_its_centre_turns_when_its_torque_exceeds_the_pads_limit(
     mass: float, friction: float, section: str
 ) -> None:
     """Flat faces and a round rod alike: the pads' patch, not the object's shape, sets the limit."""
-    thickness = 0.015
-    bar = box_model([0.2, thickness, thickness], mass, friction) if section == "square" else round_bar(mass, friction)
-    probe = torsion_probe(bar, friction, 0.04, SOFT, PANDA, thickness)
+    bar = tool_of_mass("test/bar", bar_mesh(section), mass, friction)
+    probe = torsion_probe(bar, friction, 0.04, SOFT, PANDA, 0.015)
     assert abs(probe.error) <= TOLERANCE, probe
 
 

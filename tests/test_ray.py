@@ -301,17 +301,24 @@ def _run_golden(store: ShardStore, executor: Any, on_item: Any = None) -> list:
     return run_stages(load_pipeline(GOLDEN), store, executor, names, on_item=on_item)
 
 
+def _run_golden_killing_a_node(cluster: Any, tmp_path: Path, executor: Any) -> tuple[ShardStore, Path, list, list]:
+    """The golden pipeline into ``tmp_path/data`` on a cluster whose added third node is killed
+    while it builds a checks shard; returns the store, the trace, the killed build's key(s) and the reports."""
+    doomed = cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    trace, killed = tmp_path / "trace.txt", []
+    store = ShardStore(tmp_path / "data")
+    reports = _run_golden(store, _Traced(executor, trace),
+                          _kill_when_building_there(cluster, doomed, trace, "checks", killed))
+    return store, trace, killed, reports
+
+
 @needs_ray
 def test_a_worker_node_killed_mid_stage_leaves_no_corrupt_shard(
     cluster: Any, reference: Path, tmp_path: Path
 ) -> None:
     """A third node dies while it builds a checks shard: Ray runs the task again elsewhere."""
-    doomed = cluster.add_node(num_cpus=1)
-    cluster.wait_for_nodes()
-    trace, killed = tmp_path / "trace.txt", []
-    store = ShardStore(tmp_path / "data")
-    reports = _run_golden(store, _Traced(RayExecutor(), trace),
-                          _kill_when_building_there(cluster, doomed, trace, "checks", killed))
+    store, trace, killed, reports = _run_golden_killing_a_node(cluster, tmp_path, RayExecutor())
     assert killed, "the node was never seen building a checks shard"
     # Ray ran the killed build again on another node.
     assert [node for node, key in _starts(trace) if key == killed[0]][1:], "the killed build was not run again"
@@ -329,12 +336,7 @@ def test_a_worker_node_killed_mid_stage_leaves_no_corrupt_shard(
 def test_without_retries_a_killed_node_fails_its_items_and_a_rerun_completes(
     cluster: Any, reference: Path, tmp_path: Path
 ) -> None:
-    doomed = cluster.add_node(num_cpus=1)
-    cluster.wait_for_nodes()
-    trace, killed = tmp_path / "trace.txt", []
-    store = ShardStore(tmp_path / "data")
-    reports = _run_golden(store, _Traced(RayExecutor(max_retries=0), trace),
-                          _kill_when_building_there(cluster, doomed, trace, "checks", killed))
+    store, _, killed, reports = _run_golden_killing_a_node(cluster, tmp_path, RayExecutor(max_retries=0))
     failures = [failure for report in reports for failure in report.failures]
     assert killed and failures, "the killed node's build should have failed"
     # One line each, e.g. "NodeDiedError: Task failed because the node it was running on is dead ...".

@@ -26,7 +26,8 @@ class ChecksStageParams(StageParams):
         100, ge=1, le=300,
         description="constraint solver iterations per step (pybullet's default is 50). With 30 the motors "
         "reached 30-60 N of their 70 N on light thin objects (pens, forks: 5-50 g) and a pad sank 3-5 mm into "
-        "the hull; 100 brings the annotated grasps that hold on the lift from 76 % to 91 % (docs/checks.md)",
+        "the hull; 100 brought the annotated grasps that hold on the lift from 76 % to 91 % on every fifth shared "
+        "model (docs/checks.md)",
     )
     contact_erp: float | None = Field(
         0.8, gt=0.0, le=1.0,
