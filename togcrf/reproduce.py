@@ -260,7 +260,7 @@ def reproduce_command(
     batch_size: Annotated[int | None, typer.Option(help="Override the batch size.")] = None,
     warmup_steps: Annotated[int | None, typer.Option(help="Override the learning-rate warm-up steps.")] = None,
     lr: Annotated[float | None, typer.Option(help="Override the base learning rate.")] = None,
-    time_budget: Annotated[float | None, typer.Option(help="Override the minutes of training per model.")] = None,
+    time_budget: Annotated[float | None, typer.Option(help="Override the minutes of training per model (0: none, the epochs decide).")] = None,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
     seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
     speed_images: Annotated[int, typer.Option(help="Images timed for the speed column.")] = 10,
@@ -269,10 +269,10 @@ def reproduce_command(
     try:
         chosen = resolve_scale(scale)
         overrides = {"epochs": epochs, "backbone": backbone, "batch_size": batch_size, "warmup_steps": warmup_steps,
-                     "lr": lr, "time_budget_minutes": time_budget}
+                     "lr": lr}
         chosen = replace(chosen, **{key: value for key, value in overrides.items() if value is not None})
         for name, value in (("image_size", image_size), ("max_samples", max_samples),
-                            ("eval_max_samples", eval_max_samples)):
+                            ("eval_max_samples", eval_max_samples), ("time_budget_minutes", time_budget)):
             if value is not None:
                 chosen = replace(chosen, **{name: value or None})
         selected = tuple(name.strip() for name in models.split(",") if name.strip())
