@@ -20,7 +20,7 @@ import time
 import numpy as np
 import torch
 
-from osgd.taxonomy import TASKS
+from osgd.contract.taxonomy import TASKS
 from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, measure_speed
 from togcrf.model import build_model
 

@@ -27,11 +27,11 @@ sys.path.insert(0, str(ROOT / "tests"))
 from helpers import OSGD_MODELS, fixture_models, models_table  # noqa: E402
 from test_grasps_osgd import osgd_row  # noqa: E402
 
+from osgd.contract.taxonomy import CATEGORIES  # noqa: E402
 from osgd.grasps.labels import effective_rules  # noqa: E402
 from osgd.grasps.model_grasps import GraspAnnotator, ModelInput  # noqa: E402
 from osgd.grasps.params import GraspsStageParams  # noqa: E402
 from osgd.gripper import PANDA  # noqa: E402
-from osgd.taxonomy import CATEGORIES  # noqa: E402
 
 
 def measure(label: str, rows: list[dict], repeat: int) -> None:

@@ -42,6 +42,7 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX  # noqa: E402
 from osgd.grasps.labels import DEFAULT_RULES  # noqa: E402
 from osgd.models import osgd_import, procedural  # noqa: E402
 from osgd.models.categories import draw_length  # noqa: E402
@@ -49,7 +50,6 @@ from osgd.models.parts import AutomaticParts, find_parts  # noqa: E402
 from osgd.models.pictures import draw_mesh, legend_handles, plt  # noqa: E402
 from osgd.models.stage import item_rng  # noqa: E402
 from osgd.models.validation import check_mesh  # noqa: E402
-from osgd.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX  # noqa: E402
 
 VARIANTS = ("as built", "turned", "scan")
 #: Scan stand-in: longest edge after remeshing, and the noise per axis, m.

@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from osgd.config import PipelineConfig, load_config
+from osgd.contract.schemas import SCHEMA_VERSION
 from osgd.errors import describe
 from osgd.executor import Executor
-from osgd.schemas import SCHEMA_VERSION
 from osgd.stage import PlannedShard, Stage, StageReport, run_stage
 from osgd.store import ShardStore
 

@@ -31,8 +31,9 @@ from typing import Any, ClassVar
 import pyarrow as pa
 from pydantic import BaseModel, ConfigDict
 
+from osgd.contract.shards import ShardError, ShardRecord
 from osgd.executor import Executor, SerialExecutor, TaskFailure
-from osgd.store import ShardError, ShardRecord, ShardStore, shard_key
+from osgd.store import ShardStore, shard_key
 
 log = logging.getLogger(__name__)
 

@@ -84,7 +84,7 @@ throughput() {
     $PYTHON - "$RUNS/throughput" "$RESULTS/throughput.json" "$DATA" <<'EOF'
 import csv, json, sys
 from pathlib import Path
-from osgd.samples.reader import sample_shards
+from osgd.contract.samples import sample_shards
 import pyarrow.parquet as pq
 folder, out, data = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
 train = sum(1 for path in sample_shards(data, "gpu") for split in pq.read_table(path, columns=["split"])["split"].to_pylist()

@@ -16,9 +16,9 @@ import numpy as np
 import pyarrow as pa
 import trimesh
 
-from osgd.schemas import MODELS
+from osgd.contract.schemas import MODELS
+from osgd.contract.taxonomy import PART_INDEX
 from osgd.store import ShardStore
-from osgd.taxonomy import PART_INDEX
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 OSGD_MODELS = SHARED / "osgd-models"
@@ -147,8 +147,8 @@ def synthetic_sample_row(
     on the half towards the bar's start ("handle"), "hand over" on the other
     half. Used by togcrf tests before (and independently of) the renderer.
     """
-    from osgd.samples.encoding import encode_depth, encode_mask  # noqa: PLC0415
-    from osgd.taxonomy import CATEGORIES, CATEGORY_TASK  # noqa: PLC0415
+    from osgd.contract.encoding import encode_depth, encode_mask  # noqa: PLC0415
+    from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK  # noqa: PLC0415
 
     depth = np.full((height, width), 0.8, dtype=np.float64)
     mask = np.zeros((height, width), dtype=np.uint8)
@@ -211,7 +211,7 @@ def write_synthetic_samples(store: ShardStore, count: int, seed: int = 0, test_e
     Every ``test_every``-th sample is in the test split. Also writes a
     ``synthetic`` pipeline manifest listing the shards, as the pipeline does.
     """
-    from osgd.schemas import SAMPLES, SCHEMA_VERSION  # noqa: PLC0415
+    from osgd.contract.schemas import SAMPLES, SCHEMA_VERSION  # noqa: PLC0415
 
     rng = np.random.default_rng(seed)
     rows = [synthetic_sample_row(rng, index, height, width, "test" if index % test_every == 0 else "train")

@@ -14,8 +14,8 @@ from osgd.checks.params import ChecksStageParams
 from osgd.checks.stage import ChecksStage, trial_seed
 from osgd.checks.summary import acceptance_counts
 from osgd.checks.trial import run_trial
+from osgd.contract.schemas import GRASPS, MODELS
 from osgd.gripper import PANDA
-from osgd.schemas import GRASPS, MODELS
 from osgd.stage import PlannedShard, WorkItem, run_stage
 from osgd.store import ShardStore
 

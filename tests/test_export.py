@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from test_samples_fixtures import write_fixture_inputs
 
-from osgd.samples.encoding import decode_depth
+from osgd.contract.encoding import decode_depth
+from osgd.contract.samples import iter_samples
+from osgd.contract.taxonomy import CATEGORIES, TASK_FILE_STEM, TASKS
 from osgd.samples.export import export
 from osgd.samples.projection import rectangles_from_corners, wrap_half_turn
-from osgd.samples.reader import iter_samples
 from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload
 from osgd.stage import WorkItem
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, TASK_FILE_STEM, TASKS
 
 
 @pytest.fixture(scope="module")

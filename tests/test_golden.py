@@ -53,7 +53,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from osgd.samples.encoding import decode_depth, decode_mask
+from osgd.contract.encoding import decode_depth, decode_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMITTED = ROOT / "data" / "manifests" / "golden.json"

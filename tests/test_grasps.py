@@ -13,16 +13,16 @@ from helpers import block_parts, fixture_models, hammer_parts, model_row, screwd
 from scipy.spatial.transform import Rotation
 
 from osgd.config import ConfigError, build_config
+from osgd.contract.schemas import CHECKS, GRASPS, vectors_from_arrow
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, TASKS
 from osgd.grasps.antipodal import ContactPairs, spread_order, thin_pairs
 from osgd.grasps.geometry import closing_region
 from osgd.grasps.labels import DEFAULT_RULES, LabelRule, label_grasp
 from osgd.grasps.pictures import show_grasps
 from osgd.grasps.stage import GraspsStage, GraspsStageParams
 from osgd.gripper import PANDA
-from osgd.schemas import CHECKS, GRASPS, vectors_from_arrow
 from osgd.stage import PlannedShard, WorkItem, run_stage
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, TASKS
 
 STAGE = GraspsStage()
 

@@ -20,12 +20,12 @@ from helpers import write_models
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from osgd.contract.schemas import vectors_from_arrow
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, TASKS, task_from_file_stem
 from osgd.grasps.stage import GraspsStage, GraspsStageParams
 from osgd.gripper import PANDA
-from osgd.schemas import vectors_from_arrow
 from osgd.stage import PlannedShard, WorkItem, run_stage
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, CATEGORY_TASK, TASKS, task_from_file_stem
 
 #: Middle of the real length range of each category, m (REFERENCE section 7).
 REAL_LENGTH = {"knife": 0.19, "screwdriver": 0.24, "spoon": 0.21, "fork": 0.195, "wrench": 0.245,

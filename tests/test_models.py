@@ -13,6 +13,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
+from osgd.contract.schemas import MODELS, mesh_from_arrow
+from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
 from osgd.models import decomposition
 from osgd.models.categories import CATEGORY_PROPERTIES
 from osgd.models.osgd_import import blender_to_obj, list_model_folders, load_osgd_model, read_annotations
@@ -20,10 +22,8 @@ from osgd.models.procedural import MIN_THICKNESS, generate
 from osgd.models.stage import ModelsStage, item_rng
 from osgd.models.user import parse_sidecar, sidecar_to_toml
 from osgd.models.validation import ModelRejected, check_length, check_mesh
-from osgd.schemas import MODELS, mesh_from_arrow
 from osgd.stage import run_stage
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
 
 #: Parts each procedural category must show (the grasps stage labels grasps by them).
 EXPECTED_PARTS = {

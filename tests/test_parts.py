@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
 from osgd.grasps.labels import DEFAULT_RULES
 from osgd.models import procedural
 from osgd.models.parts import find_parts, parts_method, principal_frame, true_length
 from osgd.models.stage import ModelsStage, item_rng
 from osgd.stage import run_stage
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
 
 #: Share of the surface area whose automatic part must be the generator's.
 AGREEMENT = 0.9

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from test_samples_fixtures import TOP_DOWN_ACROSS_Y, grasp_row, scene_row, write_fixture_inputs
 
 from osgd.camera import KINECT_V2
+from osgd.contract.samples import decode_row
 from osgd.samples.boxes import silhouette_pixels, visible_boxes
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.pictures import show_sample
@@ -22,7 +23,6 @@ from osgd.samples.projection import (
     suppress,
     wrap_half_turn,
 )
-from osgd.samples.reader import decode_row
 from osgd.samples.renderer import RenderObject, available_backends, make_renderer
 from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload, split_of
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose

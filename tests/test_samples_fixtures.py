@@ -14,7 +14,7 @@ import pyarrow as pa
 from helpers import fixture_models, write_models
 from scipy.spatial.transform import Rotation
 
-from osgd.schemas import CHECKS, GRASPS, SCENES
+from osgd.contract.schemas import CHECKS, GRASPS, SCENES
 from osgd.store import ShardStore
 
 #: Mesh-frame heights that rest each fixture tool on the floor: the hammer's

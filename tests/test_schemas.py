@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from osgd.schemas import TABLES, schemas_markdown, vectors_from_arrow, vectors_to_arrow
+from osgd.contract.schemas import TABLES, schemas_markdown, vectors_from_arrow, vectors_to_arrow
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
@@ -23,7 +23,7 @@ def test_vectors_round_trip(values: np.ndarray) -> None:
 
 def test_docs_schemas_is_generated_from_the_code() -> None:
     assert (DOCS / "schemas.md").read_text() == schemas_markdown(), (
-        "docs/schemas.md is out of date: run `python -m osgd.schemas > docs/schemas.md`"
+        "docs/schemas.md is out of date: run `python -m osgd.contract.schemas > docs/schemas.md`"
     )
 
 

@@ -20,9 +20,10 @@ from hypothesis import strategies as st
 from toy_stage import ToyParams, ToyStage
 
 from osgd.config import ConfigError, build_config
+from osgd.contract.shards import ShardError, file_sha256
 from osgd.executor import ProcessPoolExecutor, SerialExecutor
 from osgd.stage import run_stage
-from osgd.store import ShardError, ShardStore, file_sha256, shard_key
+from osgd.store import ShardStore, shard_key
 
 TESTS = Path(__file__).resolve().parent
 

@@ -13,7 +13,7 @@ import pytest
 import torch
 from helpers import write_synthetic_samples
 
-from osgd.samples.reader import iter_samples
+from osgd.contract.samples import iter_samples
 from osgd.store import ShardStore
 from togcrf.data import (
     DEPTH_UNIT,
@@ -183,7 +183,7 @@ def test_a_data_dir_is_read_through_its_manifest(tmp_path):
     """Shards of earlier parameters stay on disk as cache; only the manifest's are read."""
     import shutil  # noqa: PLC0415
 
-    from osgd.samples.reader import sample_shards  # noqa: PLC0415
+    from osgd.contract.samples import sample_shards  # noqa: PLC0415
 
     store = ShardStore(tmp_path)
     write_synthetic_samples(store, 8, seed=1)  # an earlier run: its shard stays on disk

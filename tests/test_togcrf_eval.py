@@ -12,8 +12,8 @@ import torch
 from helpers import write_synthetic_samples
 from typer.testing import CliRunner
 
+from osgd.contract.taxonomy import TASKS
 from osgd.store import ShardStore
-from osgd.taxonomy import TASKS
 from togcrf.cli import app
 from togcrf.evaluate import TABLE_COLUMNS, evaluate_model, format_table, table_row
 from togcrf.train import TrainConfig, load_checkpoint, train
@@ -98,7 +98,7 @@ def test_eval_errors_name_the_problem(trained: tuple[Path, Path], tmp_path: Path
 
 def test_evaluate_model_sees_the_sample_frame(trained: tuple[Path, Path]) -> None:
     """Evaluating at half the native size gives boxes in the sample's pixels, not the network's."""
-    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from osgd.contract.samples import iter_samples  # noqa: PLC0415
 
     data_dir, checkpoint = trained
     model, _ = load_checkpoint(checkpoint)
@@ -113,7 +113,7 @@ def test_evaluate_model_sees_the_sample_frame(trained: tuple[Path, Path]) -> Non
 
 def test_an_image_without_any_detection_scores_zero(trained: tuple[Path, Path]) -> None:
     """An untrained model can leave whole images without a box above the threshold."""
-    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from osgd.contract.samples import iter_samples  # noqa: PLC0415
 
     data_dir, checkpoint = trained
     model, _ = load_checkpoint(checkpoint)

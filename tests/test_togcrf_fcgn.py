@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from osgd.taxonomy import TASK_INDEX, TASKS
+from osgd.contract.taxonomy import TASK_INDEX, TASKS
 from togcrf.anchors import ANCHOR_ANGLES
 from togcrf.fcgn import FcgnTask, image_anchors
 from togcrf.model import MODEL_NAMES, build_model

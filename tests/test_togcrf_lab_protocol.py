@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from osgd.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
+from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
 from togcrf.cli import app
 from togcrf.metrics import (
     Detections,

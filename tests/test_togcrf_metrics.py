@@ -7,7 +7,7 @@ import importlib.util
 import numpy as np
 import pytest
 
-from osgd.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
+from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
 from togcrf.metrics import (
     Detections,
     GroundTruth,

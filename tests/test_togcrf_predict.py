@@ -12,9 +12,9 @@ import torch
 from helpers import write_synthetic_samples
 from typer.testing import CliRunner
 
-from osgd.samples.reader import iter_samples
+from osgd.contract.samples import iter_samples
+from osgd.contract.taxonomy import CATEGORIES, TASK_INDEX, TASKS
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, TASK_INDEX, TASKS
 from togcrf.cli import app
 from togcrf.metrics import Detections
 from togcrf.predict import best_grasp_for_task, draw_prediction, load_depth

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from osgd.schemas import CHECKS
+from osgd.contract.schemas import CHECKS
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
 from osgd.store import ShardStore
 

@@ -39,7 +39,7 @@ normalises the regression.
 
 Rectangles are ``(x, y, h, w, theta)``: centre (px), opening (px), finger
 width (px), angle of the closing direction to the image x axis (rad, in
-``[-pi/2, pi/2)``), as in ``osgd.samples.reader.Sample.grasp_rectangles``.
+``[-pi/2, pi/2)``), as in ``osgd.contract.samples.Sample.grasp_rectangles``.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from osgd.samples.reader import Sample, decode_row, sample_shards
+from osgd.contract.samples import Sample, decode_row, sample_shards
 
 logger = logging.getLogger(__name__)
 

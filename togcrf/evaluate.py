@@ -110,7 +110,7 @@ def evaluate_model(
     ----------
     model : torch.nn.Module
         In eval mode, on ``device``.
-    samples : iterable of ``osgd.samples.reader.Sample``
+    samples : iterable of ``osgd.contract.samples.Sample``
     image_size : int or None
         Passed to :func:`togcrf.data.depth_to_tensor` (the training config's).
     device : str
@@ -260,7 +260,7 @@ def evaluate_checkpoint(
     """
     from itertools import islice  # noqa: PLC0415
 
-    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from osgd.contract.samples import iter_samples  # noqa: PLC0415
     from togcrf.train import load_checkpoint  # noqa: PLC0415
 
     if protocol not in PROTOCOLS:

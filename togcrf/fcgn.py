@@ -37,7 +37,7 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torchvision.models.detection.image_list import ImageList
 
-from osgd.taxonomy import TASKS
+from osgd.contract.taxonomy import TASKS
 from togcrf.anchors import ANCHOR_ANGLES, decode, match
 from togcrf.losses import grasp_losses, top1_task_hits
 from togcrf.model import GraspHead, ModelOptions, TogDetector, fpn_strides

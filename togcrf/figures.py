@@ -20,7 +20,7 @@ import numpy as np
 import torch
 import typer
 
-from osgd.taxonomy import TASKS
+from osgd.contract.taxonomy import TASKS
 from togcrf.evaluate import write_json
 
 log = logging.getLogger(__name__)

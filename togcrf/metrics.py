@@ -101,7 +101,7 @@ from typing import Any, Literal
 import numpy as np
 import shapely
 
-from osgd.taxonomy import CATEGORIES, TASKS
+from osgd.contract.taxonomy import CATEGORIES, TASKS
 
 log = logging.getLogger(__name__)
 
@@ -479,7 +479,7 @@ def match_objects_in_order(
 
 @dataclass(frozen=True)
 class GroundTruth:
-    """One image's annotations in its pixel frame (see ``osgd.samples.reader.Sample``).
+    """One image's annotations in its pixel frame (see ``osgd.contract.samples.Sample``).
 
     Attributes
     ----------
@@ -498,7 +498,7 @@ class GroundTruth:
 
     @classmethod
     def from_sample(cls, sample: Any) -> GroundTruth:
-        """From an ``osgd.samples.reader.Sample``."""
+        """From an ``osgd.contract.samples.Sample``."""
         return cls(sample.boxes, sample.category_labels, sample.grasp_rectangles, sample.grasp_objects,
                    sample.grasp_tasks)
 

@@ -48,7 +48,7 @@ from torchvision.ops import MultiScaleRoIAlign
 from torchvision.ops.feature_pyramid_network import LastLevelMaxPool
 from torchvision.ops.poolers import initLevelMapper
 
-from osgd.taxonomy import CATEGORIES, TASKS
+from osgd.contract.taxonomy import CATEGORIES, TASKS
 from togcrf.anchors import ANCHOR_ANGLES, DEFAULT_ANCHOR_SIZE, GRID, decode, match, near_ground_truth, roi_anchors
 from togcrf.crf import DEFAULT_BANDWIDTH, DEFAULT_ITERATIONS, MeanFieldCrf
 from togcrf.losses import DEFAULT_NEGATIVE_RATIO, grasp_losses, top1_task_hits

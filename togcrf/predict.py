@@ -27,7 +27,7 @@ import numpy as np
 import torch
 import typer
 
-from osgd.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_INDEX, TASKS
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_INDEX, TASKS
 from togcrf.evaluate import run_model, write_json
 from togcrf.metrics import Detections, rectangle_corners
 
@@ -58,7 +58,7 @@ def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None =
     -------
     depth : (H, W) float32
         Metres, 0 = no reading.
-    sample : ``osgd.samples.reader.Sample`` or None
+    sample : ``osgd.contract.samples.Sample`` or None
         The sample, when ``source`` named one.
 
     Raises
@@ -86,7 +86,7 @@ def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None =
         return np.nan_to_num(depth.astype(np.float32), nan=0.0), None
     if data_dir is None:
         raise ValueError(f"{source!r} is neither a .png nor a .npy file; to name a sample id, give --data")
-    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from osgd.contract.samples import iter_samples  # noqa: PLC0415
 
     for sample in iter_samples(data_dir, pipeline=pipeline):
         if sample.sample_id == source:

@@ -233,7 +233,7 @@ def eval_file(protocol: str) -> str:
 
 
 def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | None, path: Path) -> None:
-    from osgd.samples.reader import iter_samples  # noqa: PLC0415
+    from osgd.contract.samples import iter_samples  # noqa: PLC0415
     from togcrf.predict import draw_prediction, keep_confident, predict_depth  # noqa: PLC0415
     from togcrf.train import load_checkpoint  # noqa: PLC0415
 
@@ -260,7 +260,8 @@ def reproduce_command(
     batch_size: Annotated[int | None, typer.Option(help="Override the batch size.")] = None,
     warmup_steps: Annotated[int | None, typer.Option(help="Override the learning-rate warm-up steps.")] = None,
     lr: Annotated[float | None, typer.Option(help="Override the base learning rate.")] = None,
-    time_budget: Annotated[float | None, typer.Option(help="Override the minutes of training per model (0: none, the epochs decide).")] = None,
+    time_budget: Annotated[float | None, typer.Option(
+        help="Override the minutes of training per model (0: none, the epochs decide).")] = None,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
     seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
     speed_images: Annotated[int, typer.Option(help="Images timed for the speed column.")] = 10,

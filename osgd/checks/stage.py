@@ -24,10 +24,11 @@ import pyarrow as pa
 from osgd.checks.params import ChecksStageParams
 from osgd.checks.summary import acceptance_counts, format_acceptance
 from osgd.checks.trial import TrialResult, run_trial
+from osgd.contract.schemas import CHECKS, vectors_from_arrow
+from osgd.contract.shards import ShardRecord
 from osgd.gripper import PANDA, Gripper
-from osgd.schemas import CHECKS, vectors_from_arrow
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardRecord, ShardStore
+from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
 

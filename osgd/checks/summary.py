@@ -15,8 +15,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from osgd.checks.trial import FAIL_REASONS
-from osgd.store import ShardRecord, ShardStore
-from osgd.taxonomy import CATEGORIES, TASKS
+from osgd.contract.shards import ShardRecord
+from osgd.contract.taxonomy import CATEGORIES, TASKS
+from osgd.store import ShardStore
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Task labels of sampled grasps, from the parts the fingers touch.
 
-The paper's Table I (``osgd.taxonomy.TASK_REQUIREMENT``) states each task's
+The paper's Table I (``osgd.contract.taxonomy.TASK_REQUIREMENT``) states each task's
 grasp requirement in words. For a model whose faces carry part labels the
 requirement becomes one rule per category, all in :data:`DEFAULT_RULES`:
 
@@ -27,7 +27,7 @@ from collections.abc import Mapping
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from osgd.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, PARTS
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, PARTS
 
 
 class LabelRule(BaseModel):

@@ -21,6 +21,8 @@ import numpy as np
 import pyarrow as pa
 import trimesh
 
+from osgd.contract.schemas import GRASPS, mesh_from_arrow, vectors_to_arrow
+from osgd.contract.taxonomy import CATEGORIES, PARTS, TASKS
 from osgd.grasps.antipodal import sample_pairs, spread_order, thin_pairs
 from osgd.grasps.geometry import (
     GripperCollision,
@@ -35,8 +37,6 @@ from osgd.grasps.geometry import (
 from osgd.grasps.labels import LabelRule, label_grasp
 from osgd.grasps.params import GraspsStageParams
 from osgd.gripper import Gripper
-from osgd.schemas import GRASPS, mesh_from_arrow, vectors_to_arrow
-from osgd.taxonomy import CATEGORIES, PARTS, TASKS
 
 log = logging.getLogger(__name__)
 

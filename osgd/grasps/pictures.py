@@ -19,10 +19,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from osgd.contract.schemas import mesh_from_arrow, vectors_from_arrow
+from osgd.contract.taxonomy import PARTS, TASKS
 from osgd.gripper import PANDA, Gripper
-from osgd.schemas import mesh_from_arrow, vectors_from_arrow
 from osgd.store import ShardStore
-from osgd.taxonomy import PARTS, TASKS
 
 #: One colour per task label, in ``taxonomy.TASKS`` order (colour-blind
 #: friendly where possible; "no task" grey, "hand over" black).

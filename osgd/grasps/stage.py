@@ -19,15 +19,16 @@ from collections.abc import Mapping, Sequence
 
 import pyarrow as pa
 
+from osgd.contract.schemas import GRASPS
+from osgd.contract.shards import ShardRecord
+from osgd.contract.taxonomy import CATEGORIES, TASKS
 from osgd.grasps.labels import LabelRule, effective_rules
 from osgd.grasps.model_grasps import GraspAnnotator, ModelInput, rules_payload
 from osgd.grasps.params import GraspsStageParams
 from osgd.gripper import PANDA, Gripper
 from osgd.models.parts import without_task_labels
-from osgd.schemas import GRASPS
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardRecord, ShardStore
-from osgd.taxonomy import CATEGORIES, TASKS
+from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
 

@@ -39,7 +39,7 @@ from typing import Final
 
 import numpy as np
 
-from osgd.taxonomy import CATEGORIES
+from osgd.contract.taxonomy import CATEGORIES
 
 #: Rolling and spinning friction of every model (REFERENCE section 8).
 ROLLING_FRICTION: Final[float] = 0.01
@@ -101,7 +101,7 @@ def category_properties(category: str) -> CategoryProperties:
     Raises
     ------
     ValueError
-        If the category is not one of :data:`osgd.taxonomy.CATEGORIES`.
+        If the category is not one of :data:`osgd.contract.taxonomy.CATEGORIES`.
     """
     try:
         return CATEGORY_PROPERTIES[category]

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from osgd.contract.taxonomy import CATEGORIES, task_from_file_stem
 from osgd.errors import InputError
-from osgd.taxonomy import CATEGORIES, task_from_file_stem
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ class AnnotatedPair:
     Attributes
     ----------
     task : str
-        A task of :data:`osgd.taxonomy.TASKS`.
+        A task of :data:`osgd.contract.taxonomy.TASKS`.
     contact_a, contact_b : (3,) float64
         The two finger positions, in the mesh's frame and units.
     file : str

@@ -45,7 +45,7 @@ from scipy import ndimage
 from scipy.spatial import QhullError
 from scipy.spatial.transform import Rotation
 
-from osgd.taxonomy import CATEGORIES, PART_INDEX, UNKNOWN_PART
+from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, UNKNOWN_PART
 
 #: Columns of the profiles along the tool's axis (0.4-0.8 mm for real tools).
 COLUMNS: Final[int] = 400
@@ -646,7 +646,7 @@ class AutomaticParts:
     Attributes
     ----------
     face_parts : (F,) int8
-        Index into :data:`osgd.taxonomy.PARTS` per face; all -1 when not found.
+        Index into :data:`osgd.contract.taxonomy.PARTS` per face; all -1 when not found.
     confidence : float
         In [0, 1].
     found : bool
@@ -688,7 +688,7 @@ def find_parts(mesh: trimesh.Trimesh, category: str) -> AutomaticParts:
     mesh : trimesh.Trimesh
         (V, 3) vertices at real size, m, any pose; (F, 3) faces.
     category : str
-        One of :data:`osgd.taxonomy.CATEGORIES`.
+        One of :data:`osgd.contract.taxonomy.CATEGORIES`.
 
     Returns
     -------

@@ -25,10 +25,11 @@ import trimesh
 from matplotlib.collections import PolyCollection
 from matplotlib.patches import Patch
 
+from osgd.contract.schemas import mesh_from_arrow
+from osgd.contract.shards import ShardError
+from osgd.contract.taxonomy import PART_INDEX, PARTS
 from osgd.models.parts import PrincipalFrame, parts_method, principal_frame
-from osgd.schemas import mesh_from_arrow
-from osgd.store import ShardError, ShardStore
-from osgd.taxonomy import PART_INDEX, PARTS
+from osgd.store import ShardStore
 
 #: Colour of each part (index into PARTS), then of unknown parts.
 PART_COLOURS = np.array(

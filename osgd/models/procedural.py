@@ -3,7 +3,7 @@
 Each category has a builder that draws a handful of shape parameters
 (lengths, widths, profiles, head shapes, tine counts, jaw shapes...) from a
 ``numpy.random.Generator`` and returns convex *primitives*, each tagged with
-a part name from :data:`osgd.taxonomy.PARTS` and a sign (added or carved
+a part name from :data:`osgd.contract.taxonomy.PARTS` and a sign (added or carved
 out). :func:`generate` joins the primitives with manifold3d booleans, which
 gives a watertight, single-body mesh, and labels each face with the part of
 the primitive whose surface it lies on.
@@ -26,8 +26,8 @@ from typing import Any, Final
 import numpy as np
 import trimesh
 
+from osgd.contract.taxonomy import CATEGORIES, PART_INDEX
 from osgd.models.categories import draw_length
-from osgd.taxonomy import CATEGORIES, PART_INDEX
 
 #: The thinnest any part may be, metres (REFERENCE section 8: a 4 mm fork is
 #: already hard for the physics gripper; much thinner parts vanish).
@@ -41,7 +41,7 @@ class Primitive:
     Attributes
     ----------
     part : str
-        A name from :data:`osgd.taxonomy.PARTS`.
+        A name from :data:`osgd.contract.taxonomy.PARTS`.
     mesh : trimesh.Trimesh
         Convex and watertight.
     carve : bool
@@ -62,7 +62,7 @@ class ProceduralModel:
     mesh : trimesh.Trimesh
         Watertight, metres, tool frame (see the module docstring).
     face_parts : (F,) int8
-        Index into :data:`osgd.taxonomy.PARTS` per face.
+        Index into :data:`osgd.contract.taxonomy.PARTS` per face.
     parameters : dict
         The shape parameters drawn, JSON-able (for provenance).
     """
@@ -781,7 +781,7 @@ def generate(category: str, rng: np.random.Generator) -> ProceduralModel:
     Parameters
     ----------
     category : str
-        One of :data:`osgd.taxonomy.CATEGORIES`.
+        One of :data:`osgd.contract.taxonomy.CATEGORIES`.
     rng : numpy.random.Generator
         The only source of randomness: the same state gives the same mesh.
 

@@ -45,16 +45,17 @@ import pyarrow as pa
 import trimesh
 from pydantic import Field
 
+from osgd.contract.schemas import MODELS, empty_table
+from osgd.contract.shards import ShardRecord, file_sha256
+from osgd.contract.taxonomy import CATEGORIES, UNKNOWN_PART
 from osgd.errors import InputError
 from osgd.models import decomposition, osgd_import, parts, procedural, user
 from osgd.models.categories import category_properties, draw_length
 from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
 from osgd.models.osgd_import import AnnotatedPair
 from osgd.models.validation import ModelRejected, check_length, check_mesh
-from osgd.schemas import MODELS, empty_table
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_notes
-from osgd.store import ShardRecord, ShardStore, file_sha256
-from osgd.taxonomy import CATEGORIES, UNKNOWN_PART
+from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
 

@@ -39,10 +39,10 @@ import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, TASKS, UNKNOWN_PART, task_from_file_stem
 from osgd.errors import InputError
 from osgd.models.osgd_import import AnnotatedPair, blender_to_obj
 from osgd.models.validation import ModelRejected
-from osgd.taxonomy import CATEGORIES, PART_INDEX, PARTS, TASKS, UNKNOWN_PART, task_from_file_stem
 
 #: File name endings read as users' meshes.
 MESH_SUFFIXES: tuple[str, ...] = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")

@@ -31,8 +31,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from osgd.contract.taxonomy import UNKNOWN_PART
 from osgd.models.categories import plausible_length_range
-from osgd.taxonomy import UNKNOWN_PART
 
 log = logging.getLogger(__name__)
 

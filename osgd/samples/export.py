@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from osgd.samples.encoding import encode_depth
+from osgd.contract.encoding import encode_depth
+from osgd.contract.samples import Sample, iter_samples
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_FILE_STEM, TASKS
 from osgd.samples.projection import rectangle_corners
-from osgd.samples.reader import Sample, iter_samples
 from osgd.store import ShardStore
-from osgd.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_FILE_STEM, TASKS
 
 #: Formats :func:`export` writes.
 FORMATS: tuple[str, ...] = ("osgd", "cornell", "coco")

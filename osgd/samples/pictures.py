@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow.compute as pc
 
+from osgd.contract.samples import Sample, decode_row
+from osgd.contract.taxonomy import TASK_INDEX, TASKS
 from osgd.samples.projection import rectangle_corners
-from osgd.samples.reader import Sample, decode_row
 from osgd.store import ShardStore
-from osgd.taxonomy import TASK_INDEX, TASKS
 
 
 def find_sample(store: ShardStore, sample_id: str) -> Sample:

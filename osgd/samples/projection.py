@@ -1,6 +1,6 @@
 """3-D grasps seen by the camera: frames, filters and 5-D rectangles.
 
-Rectangle convention (also in ``osgd.schemas.SAMPLES``)
+Rectangle convention (also in ``osgd.contract.schemas.SAMPLES``)
 -------------------------------------------------------
 ``(x, y, h, w, theta)`` in pixels and radians, image ``x`` to the right and
 ``y`` down (OpenCV, :mod:`osgd.camera`):

@@ -36,10 +36,12 @@ from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import KINECT_V2, CameraIntrinsics
+from osgd.contract.encoding import encode_depth, encode_mask
+from osgd.contract.schemas import SAMPLES
+from osgd.contract.shards import ShardRecord
 from osgd.gripper import PANDA, Gripper
 from osgd.samples.boxes import silhouette_pixels, visible_boxes
 from osgd.samples.collision import pile_collider
-from osgd.samples.encoding import encode_depth, encode_mask
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.projection import (
     GraspSet,
@@ -52,9 +54,8 @@ from osgd.samples.projection import (
 )
 from osgd.samples.renderer import Renderer, RenderObject, make_renderer
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
-from osgd.schemas import SAMPLES
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardRecord, ShardStore
+from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
 
@@ -213,7 +214,7 @@ def render_sample(
     Returns
     -------
     dict
-        Keyed by the columns of ``osgd.schemas.SAMPLES``.
+        Keyed by the columns of ``osgd.contract.schemas.SAMPLES``.
     """
     intrinsics = params.intrinsics(*depth_range)
     objects = list(scene["objects"])
@@ -387,7 +388,7 @@ class SamplesStage(Stage):
 
     name = "samples"
     table = "samples"
-    version = 3
+    version = 4  # 4: the shards record their vocabulary (osgd.vocabulary)
     inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."

@@ -12,8 +12,8 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
+from osgd.contract.taxonomy import CATEGORIES
 from osgd.stage import StageParams
-from osgd.taxonomy import CATEGORIES
 
 
 class ScenesStageParams(StageParams):

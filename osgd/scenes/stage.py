@@ -12,11 +12,12 @@ from collections.abc import Mapping, Sequence
 
 import pyarrow as pa
 
+from osgd.contract.schemas import SCENES
+from osgd.contract.shards import ShardRecord
 from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene
 from osgd.scenes.params import ScenesStageParams
-from osgd.schemas import SCENES
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
-from osgd.store import ShardRecord, ShardStore
+from osgd.store import ShardStore
 
 
 class ScenesStage(Stage):

@@ -25,10 +25,11 @@ from typing import Any
 
 import numpy as np
 
+from osgd.contract.shards import ShardRecord
 from osgd.physics import create_object_body, physics_client
 from osgd.quiet import import_pybullet
 from osgd.scenes.views import cast_view, load_models, posed_meshes
-from osgd.store import ShardRecord, ShardStore
+from osgd.store import ShardStore
 
 pybullet = import_pybullet()
 

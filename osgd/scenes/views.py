@@ -17,7 +17,7 @@ import pyarrow.compute as pc
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from osgd.schemas import mesh_from_arrow
+from osgd.contract.schemas import mesh_from_arrow
 from osgd.store import ShardStore
 
 

@@ -88,8 +88,8 @@ def robot_eval_command(
 ) -> None:
     """Table III (GSR-S, GSR-T) in simulation: the paper's robot protocol on fresh piles, per checkpoint."""
     from osgd.config import ConfigError  # noqa: PLC0415
+    from osgd.contract.shards import ShardError  # noqa: PLC0415
     from osgd.pipeline import load_pipeline  # noqa: PLC0415
-    from osgd.store import ShardError  # noqa: PLC0415
     from togcrf.evaluate import command_line  # noqa: PLC0415
     from togcrf.robot.protocol import check_fresh, protocol_trials  # noqa: PLC0415
     from togcrf.robot.run import RunSpec, run_protocol  # noqa: PLC0415

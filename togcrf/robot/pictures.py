@@ -150,7 +150,7 @@ def _draw_detections(axes: Any, detections: Any) -> None:
     """A checkpoint's detections: dashed yellow boxes, category and score at the bottom-left corner."""
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    from osgd.taxonomy import CATEGORIES  # noqa: PLC0415
+    from osgd.contract.taxonomy import CATEGORIES  # noqa: PLC0415
 
     for box, category, score in zip(detections.boxes, detections.categories, detections.scores, strict=True):
         x1, y1, x2, y2 = box

@@ -127,7 +127,7 @@ def build_pile(world: World, trial: Trial, pile: int = 0) -> dict[str, Any]:
 
 def observe(world: World, scene: dict[str, Any], renderer: Any) -> Observation:
     """Render a pile with the render stage: noisy depth, mask, camera, ground-truth rectangles."""
-    from osgd.samples.encoding import decode_depth, decode_mask  # noqa: PLC0415
+    from osgd.contract.encoding import decode_depth, decode_mask  # noqa: PLC0415
     from osgd.samples.stage import render_sample  # noqa: PLC0415
 
     params = world.params("samples")

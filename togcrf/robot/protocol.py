@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from osgd.taxonomy import TASK_INDEX, TASKS
+from osgd.contract.taxonomy import TASK_INDEX, TASKS
 
 #: Tasks for which the paper names an object category first (Section V-C).
 NAMED_TASKS: tuple[str, ...] = ("no task", "hand over")

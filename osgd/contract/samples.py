@@ -2,7 +2,7 @@
 
 Example
 -------
->>> from osgd.samples.reader import iter_samples
+>>> from osgd.contract.samples import iter_samples
 >>> for sample in iter_samples("data", pipeline="default", split="train"):  # doctest: +SKIP
 ...     depth = sample.depth                    # (H, W) float32, metres, 0 = no reading
 ...     boxes = sample.boxes                    # (N, 4) float32, x1 y1 x2 y2 pixels
@@ -16,6 +16,8 @@ OpenCV.
 
 from __future__ import annotations
 
+import json
+import logging
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,9 +26,11 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from osgd.samples.encoding import decode_depth, decode_mask
-from osgd.store import ShardError, ShardStore
-from osgd.taxonomy import CATEGORY_INDEX, TASK_INDEX
+from osgd.contract.encoding import decode_depth, decode_mask
+from osgd.contract.shards import ShardError, ShardReader
+from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, VOCABULARY, vocabulary_difference
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -150,7 +154,7 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
     ValueError
         If no pipeline is given and several manifests have samples.
     """
-    store = ShardStore(data_dir)
+    store = ShardReader(data_dir)
     if pipeline is None:
         pipeline = _only_samples_pipeline(store)
     if pipeline is not None:
@@ -165,7 +169,8 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
     for key in keys:
         try:
             store.verify("samples", key)
-        except ShardError:
+        except ShardError as error:
+            log.warning("left out of the samples: %s", error)
             continue
         paths.append(store.shard_path("samples", key))
     if not paths:
@@ -173,7 +178,7 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
     return paths
 
 
-def _only_samples_pipeline(store: ShardStore) -> str | None:
+def _only_samples_pipeline(store: ShardReader) -> str | None:
     folder = store.root / "manifests"
     names = []
     for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
@@ -185,6 +190,49 @@ def _only_samples_pipeline(store: ShardStore) -> str | None:
     if len(names) > 1:
         raise ValueError(f"{folder}: several pipelines have samples ({', '.join(names)}); name one (--pipeline)")
     return names[0] if names else None
+
+
+def shard_vocabulary(path: Path) -> dict[str, list[str]]:
+    """The vocabulary a samples shard was labelled with (``osgd.vocabulary`` in its metadata).
+
+    A shard written before shards recorded it (samples stage version 3 and
+    older) was labelled with the vocabulary of schema version 1, which is
+    today's :data:`~osgd.contract.taxonomy.VOCABULARY`.
+
+    Raises
+    ------
+    ShardError
+        If the file is not readable Parquet or its vocabulary is not JSON.
+    """
+    try:
+        metadata = pq.read_schema(path).metadata or {}
+    except (OSError, ValueError) as error:
+        raise ShardError(f"{path}: unreadable Parquet ({error})") from error
+    text = metadata.get(b"osgd.vocabulary")
+    if text is None:
+        return {field: list(names) for field, names in VOCABULARY.items()}
+    try:
+        return {field: list(names) for field, names in json.loads(text).items()}
+    except (ValueError, AttributeError, TypeError) as error:
+        raise ShardError(f"{path}: unreadable osgd.vocabulary metadata ({error})") from error
+
+
+def samples_vocabulary(shards: Sequence[Path]) -> dict[str, list[str]]:
+    """The one vocabulary of several samples shards.
+
+    Raises
+    ------
+    ValueError
+        If two shards were labelled with different vocabularies (naming both).
+    """
+    if not shards:
+        return {field: list(names) for field, names in VOCABULARY.items()}
+    first = shard_vocabulary(shards[0])
+    for path in shards[1:]:
+        difference = vocabulary_difference(shard_vocabulary(path), first)
+        if difference is not None:
+            raise ValueError(f"{path}: labelled with another vocabulary than {shards[0]}: {difference}")
+    return first
 
 
 def iter_samples(

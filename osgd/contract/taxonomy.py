@@ -12,6 +12,7 @@ logits and the CRF's 12 x 12 compatibility matrices are indexed by it.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Final
 
 #: The 12 task labels in the order of Table I (11 tasks plus "no task").
@@ -126,3 +127,24 @@ def task_from_file_stem(stem: str) -> str:
         f"annotation file stem {stem!r} names no task; expected one of "
         f"{sorted(TASK_FILE_STEM.values())}"
     )
+
+
+#: The vocabulary a detector's outputs are indexed by: the category classes and the task logits, in
+#: order. Samples shards record it (``osgd.vocabulary`` in their Parquet metadata) and so do
+#: checkpoints, so that a model never reads data labelled with another vocabulary.
+VOCABULARY: Final[dict[str, tuple[str, ...]]] = {"categories": CATEGORIES, "tasks": TASKS}
+
+
+def vocabulary_difference(recorded: Mapping[str, Sequence[str]], expected: Mapping[str, Sequence[str]]) -> str | None:
+    """One line saying how two vocabularies differ, or None when they agree.
+
+    Parameters
+    ----------
+    recorded, expected : mapping
+        ``{"categories": [...], "tasks": [...]}`` as in :data:`VOCABULARY`.
+    """
+    for field in ("categories", "tasks"):
+        first, second = list(recorded.get(field, ())), list(expected.get(field, ()))
+        if first != second:
+            return f"{field} {first} against {second}"
+    return None

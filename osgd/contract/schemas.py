@@ -21,10 +21,13 @@ The helpers at the end turn these columns into numpy arrays and back.
 
 from __future__ import annotations
 
+import json
 from typing import Final
 
 import numpy as np
 import pyarrow as pa
+
+from osgd.contract.taxonomy import VOCABULARY
 
 #: Bumped whenever a table's columns change meaning or type.
 SCHEMA_VERSION: Final[int] = 1
@@ -186,7 +189,8 @@ SAMPLES = pa.schema(
                  metadata={"doc": "rectangle = (x, y, h, w, theta): centre px, opening px, finger width px, "
                                   "angle of the closing direction to the image x axis, rad, in [-pi/2, pi/2); "
                                   "position/quaternion: the 3-D grasp in the camera frame"}),
-    ]
+    ],
+    metadata={b"osgd.vocabulary": json.dumps(VOCABULARY, separators=(",", ":")).encode()},
 )
 
 #: Every table by name; the stage framework looks schemas up here.
@@ -260,14 +264,14 @@ def empty_table(table: str) -> pa.Table:
 def schemas_markdown() -> str:
     """The table schemas as Markdown: ``docs/schemas.md`` is this text.
 
-    Regenerate with ``python -m osgd.schemas > docs/schemas.md``; a test
+    Regenerate with ``python -m osgd.contract.schemas > docs/schemas.md``; a test
     fails when the two disagree.
     """
     lines = [
         "# Table schemas",
         "",
-        f"Generated from `osgd/schemas.py` (schema version {SCHEMA_VERSION}) by "
-        "`python -m osgd.schemas > docs/schemas.md`; do not edit by hand.",
+        f"Generated from `osgd/contract/schemas.py` (schema version {SCHEMA_VERSION}) by "
+        "`python -m osgd.contract.schemas > docs/schemas.md`; do not edit by hand.",
         "",
         "Lengths in metres, angles in radians, masses in kilograms; quaternions are "
         "`(x, y, z, w)`. Frames: see `docs/architecture.md`.",

@@ -1,0 +1,15 @@
+"""The data contract between the generator (osgd) and its readers (togcrf, users' code).
+
+Everything a reader of the dataset needs, and nothing else: it imports only
+numpy, pyarrow and OpenCV (``tests/test_contract.py`` enforces it).
+
+- :mod:`osgd.contract.taxonomy`: the categories, the task labels of Table I
+  and the object parts (the vocabulary);
+- :mod:`osgd.contract.schemas`: every Parquet table;
+- :mod:`osgd.contract.encoding`: the PNG encodings of depth and masks;
+- :mod:`osgd.contract.shards`: find, verify and read finished shards;
+- :mod:`osgd.contract.samples`: the training samples as numpy arrays.
+
+The generator writes through the same definitions, so a shard and its
+reader cannot disagree.
+"""
