@@ -15,10 +15,10 @@ line per stage every ``OSGD_PROGRESS_INTERVAL`` seconds (default 30).
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -31,7 +31,7 @@ from rich.text import Text
 
 from osgd.config import ConfigError, PipelineConfig, config_to_toml
 from osgd.errors import describe
-from osgd.executor import BACKENDS, Executor, ExecutorError, make_executor
+from osgd.executor import BACKENDS, Executor, ExecutorError, SerialExecutor, make_executor
 from osgd.pipeline import (
     COMMAND_STAGES,
     MissingInputError,
@@ -46,6 +46,7 @@ from osgd.progress import LineProgress
 from osgd.stage import ItemFailure, StageReport
 from osgd.store import DataDirError, ShardStore, check_data_dir, write_problem
 
+log = logging.getLogger(__name__)
 console = Console(stderr=True)
 app = typer.Typer(
     help="Build task-oriented grasping datasets of stacked objects.\n\n"
@@ -66,6 +67,8 @@ class _Global:
     debug: bool = False
     executor: str | None = None
     ray_address: str | None = None
+    #: Whether this process's str hashes differ from its workers' (:func:`_seed_worker_hashes`).
+    hash_seed_differs: bool = False
 
 
 @app.callback()
@@ -197,11 +200,9 @@ def _bar_progress() -> tuple[Any, Any, Any]:
 
 def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...], force: bool) -> None:
     config = _load(config_path, overrides)
-    pending = [name for name in names if not stage_by_name(name).implemented]
-    if pending:
-        _fail(f"stage(s) {pending} not implemented yet")
     store = _store(writable=True, absolute=(_Global.executor or config.executor.backend) == "ray")
     executor = _executor(config)
+    _warn_if_built_with_other_hashes(executor)
     if console.is_terminal:
         progress, on_stage, on_item = _bar_progress()
     else:
@@ -313,23 +314,12 @@ def status(config: ConfigOption, set_: SetOption = None) -> None:
     for column in ("stage", "done", "missing", "failed", "corrupt", "stale"):
         table.add_column(column, justify="left" if column == "stage" else "right")
     for row in rows:
-        name = row.stage if stage_by_name(row.stage).implemented else f"{row.stage} (not implemented yet)"
-        table.add_row(name, str(row.done), str(row.missing), str(row.failed), str(row.corrupt), str(row.stale))
+        table.add_row(row.stage, str(row.done), str(row.missing), str(row.failed), str(row.corrupt), str(row.stale))
     Console().print(table)
 
 
-def _dispatch(target: str, **kwargs: Any) -> None:
-    """Call ``module:function`` of a stage package; say so if it is not there yet."""
-    module_name, function_name = target.split(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as error:
-        if error.name == module_name:
-            _fail(f"not implemented yet ({target})")
-        raise
-    function = getattr(module, function_name, None)
-    if function is None:
-        _fail(f"not implemented yet ({target})")
+def _call_with_store(function: Callable[..., Any], **kwargs: Any) -> None:
+    """Call a picture or export function on the data dir's store; print what it returns."""
     store = _store(writable=False)
     try:
         result = function(store=store, **kwargs)
@@ -345,13 +335,17 @@ OutOption = Annotated[Path, typer.Option("--out", "-o", help="PNG file to write.
 @show_app.command("model")
 def show_model(model_id: str, out: OutOption) -> None:
     """A model's mesh coloured by part, with its principal axis and how its parts were found."""
-    _dispatch("osgd.models.pictures:show_model", model_id=model_id, out=out)
+    from osgd.models.pictures import show_model as draw  # noqa: PLC0415 (keeps --help fast)
+
+    _call_with_store(draw, model_id=model_id, out=out)
 
 
 @show_app.command("models")
 def show_models(out: OutOption) -> None:
     """A contact sheet of every model in the data dir."""
-    _dispatch("osgd.models.pictures:show_models", out=out)
+    from osgd.models.pictures import show_models as draw  # noqa: PLC0415 (keeps --help fast)
+
+    _call_with_store(draw, out=out)
 
 
 @show_app.command("grasps")
@@ -361,19 +355,25 @@ def show_grasps(
     color_by: Annotated[str, typer.Option(help="task, or stability (needs the checks table).")] = "task",
 ) -> None:
     """A model with its grasps drawn as gripper outlines."""
-    _dispatch("osgd.grasps.pictures:show_grasps", model_id=model_id, out=out, color_by=color_by)
+    from osgd.grasps.pictures import show_grasps as draw  # noqa: PLC0415 (keeps --help fast)
+
+    _call_with_store(draw, model_id=model_id, out=out, color_by=color_by)
 
 
 @show_app.command("scene")
 def show_scene(scene_id: str, out: OutOption) -> None:
     """A picture of a stacked scene."""
-    _dispatch("osgd.scenes.pictures:show_scene", scene_id=scene_id, out=out)
+    from osgd.scenes.pictures import show_scene as draw  # noqa: PLC0415 (keeps --help fast)
+
+    _call_with_store(draw, scene_id=scene_id, out=out)
 
 
 @show_app.command("sample")
 def show_sample(sample_id: str, out: OutOption) -> None:
     """Depth with boxes and grasp rectangles coloured by task (paper figures 2 and 7)."""
-    _dispatch("osgd.samples.pictures:show_sample", sample_id=sample_id, out=out)
+    from osgd.samples.pictures import show_sample as draw  # noqa: PLC0415 (keeps --help fast)
+
+    _call_with_store(draw, sample_id=sample_id, out=out)
 
 
 @app.command("export")
@@ -382,12 +382,36 @@ def export(
     format_: Annotated[str, typer.Option("--format", help="osgd, cornell or coco.")] = "osgd",
 ) -> None:
     """Write the samples in a format peers' tools read."""
-    _dispatch("osgd.samples.export:export", out_dir=out_dir, format=format_)
+    from osgd.samples.export import export as write  # noqa: PLC0415 (keeps --help fast)
+
+    _call_with_store(write, out_dir=out_dir, format=format_)
+
+
+def _seed_worker_hashes() -> None:
+    """Give the processes this one starts ``PYTHONHASHSEED=0``, unless the user chose a seed.
+
+    The interpreter reads ``PYTHONHASHSEED`` once, when it starts: setting it
+    here reaches only child processes (the process pool's workers, a local Ray
+    instance through :func:`osgd.executor.ray_runtime_env`), never this
+    process's own ``str`` hashes. Whether the two differ is kept for
+    :func:`_warn_if_built_with_other_hashes`.
+    """
+    own = os.environ.get("PYTHONHASHSEED")
+    os.environ.setdefault("PYTHONHASHSEED", "0")
+    _Global.hash_seed_differs = own != os.environ["PYTHONHASHSEED"]
+
+
+def _warn_if_built_with_other_hashes(executor: Executor) -> None:
+    """Warn when shards are built in this process while its ``str`` hashes are not the workers'."""
+    if isinstance(executor, SerialExecutor) and _Global.hash_seed_differs:
+        log.warning("the shards are built in this process (one worker), whose string hashes are random: "
+                    "PYTHONHASHSEED was not set when it started, and worker processes run with 0; "
+                    "set PYTHONHASHSEED=0 to build them with the workers' hashes")
 
 
 def run() -> None:
     """Console-script entry point: an unexpected error is one line, its traceback only with ``--debug``."""
-    os.environ.setdefault("PYTHONHASHSEED", "0")
+    _seed_worker_hashes()
     try:
         app()
     except KeyboardInterrupt:

@@ -24,29 +24,38 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import functools
 import shutil
 import tempfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from osgd.quiet import import_pybullet
 
-pybullet = import_pybullet()
 
-_OBJ_FOLDER: Path | None = None
+@functools.cache
+def pybullet_module() -> ModuleType:
+    """The pybullet module, imported on first use without its build-time banner.
+
+    Importing :mod:`osgd.physics` does not import pybullet (nor send file
+    descriptors 1 and 2 to /dev/null while it loads, as
+    :func:`osgd.quiet.import_pybullet` does): the code that creates physics
+    clients and bodies calls this first.
+    """
+    return import_pybullet()
 
 
+@functools.cache
 def _obj_folder() -> Path:
-    """A per-process temporary folder for compound OBJ files, removed at exit."""
-    global _OBJ_FOLDER
-    if _OBJ_FOLDER is None:
-        _OBJ_FOLDER = Path(tempfile.mkdtemp(prefix="osgd-physics-"))
-        atexit.register(shutil.rmtree, _OBJ_FOLDER, ignore_errors=True)
-    return _OBJ_FOLDER
+    """A per-process temporary folder for compound OBJ files, made on first use and removed at exit."""
+    folder = Path(tempfile.mkdtemp(prefix="osgd-physics-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
 
 
 def write_compound_obj(convex_parts: list[tuple[np.ndarray, np.ndarray]], path: Path) -> Path:
@@ -152,6 +161,7 @@ def create_object_body(
     -------
     ObjectBody
     """
+    pybullet = pybullet_module()
     if not len(model["convex_parts"]):
         raise ValueError(f"model {model['model_id']}: no convex parts to collide with")
     # One compound file per model and process; later bodies of the model reuse it.
@@ -189,6 +199,7 @@ def create_object_body(
 
 def set_mesh_pose(body: ObjectBody, position: np.ndarray, quaternion: np.ndarray) -> None:
     """Place a body so that its mesh frame has the given world pose (velocities kept)."""
+    pybullet = pybullet_module()
     com_position, com_quaternion = pybullet.multiplyTransforms(
         list(map(float, position)), list(map(float, quaternion)),
         body.inertial_position.tolist(), body.inertial_quaternion.tolist(),
@@ -205,6 +216,7 @@ def get_mesh_pose(body: ObjectBody) -> tuple[np.ndarray, np.ndarray]:
     quaternion : (4,) float64
         (x, y, z, w)
     """
+    pybullet = pybullet_module()
     com_position, com_quaternion = pybullet.getBasePositionAndOrientation(body.body_id, physicsClientId=body.client)
     inverse_position, inverse_quaternion = pybullet.invertTransform(
         body.inertial_position.tolist(), body.inertial_quaternion.tolist()
@@ -226,6 +238,7 @@ def physics_client(timestep: float = 1.0 / 240.0, gravity: float = -9.81) -> Ite
     gravity : float
         Along world z, m/s^2.
     """
+    pybullet = pybullet_module()
     client = pybullet.connect(pybullet.DIRECT)
     try:
         pybullet.setGravity(0.0, 0.0, gravity, physicsClientId=client)

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
@@ -24,7 +25,9 @@ from osgd.store import ShardStore
 log = logging.getLogger(__name__)
 
 
-def _stages() -> tuple[Stage, ...]:
+@functools.cache
+def stages() -> tuple[Stage, ...]:
+    """Every stage, in data-flow order (imported on first use: ``osgd --help`` loads no stage)."""
     from osgd.checks.stage import ChecksStage  # noqa: PLC0415
     from osgd.grasps.stage import GraspsStage  # noqa: PLC0415
     from osgd.models.stage import ModelsStage  # noqa: PLC0415
@@ -32,17 +35,6 @@ def _stages() -> tuple[Stage, ...]:
     from osgd.scenes.stage import ScenesStage  # noqa: PLC0415
 
     return (ModelsStage(), GraspsStage(), ChecksStage(), ScenesStage(), SamplesStage())
-
-
-_STAGES: tuple[Stage, ...] | None = None
-
-
-def stages() -> tuple[Stage, ...]:
-    """Every stage, in data-flow order."""
-    global _STAGES
-    if _STAGES is None:
-        _STAGES = _stages()
-    return _STAGES
 
 
 def stage_by_name(name: str) -> Stage:

@@ -4,7 +4,8 @@ pybullet prints "pybullet build time: ..." to stderr when it is imported, in
 the main process and in every worker, and its EGL plugin prints its GL set-up
 when it loads, renders and unloads. The CLI's progress bars and summaries are
 what a user reads, so osgd imports pybullet through :func:`import_pybullet`
-and wraps the plugin's calls in :func:`native_output_hidden`.
+(by way of :func:`osgd.physics.pybullet_module`, on first use: never when a
+module is imported) and wraps the plugin's calls in :func:`native_output_hidden`.
 """
 
 from __future__ import annotations

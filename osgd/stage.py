@@ -117,8 +117,6 @@ class Stage(abc.ABC):
     inputs: ClassVar[tuple[str, ...]] = ()
     Params: ClassVar[type[StageParams]]
     description: ClassVar[str] = ""
-    #: False for a stage whose command only says "not implemented yet".
-    implemented: ClassVar[bool] = True
 
     @abc.abstractmethod
     def plan(
@@ -313,31 +311,11 @@ def run_stage(
     StageReport
     """
     executor = executor or SerialExecutor()
-    manifest_shards = manifest_shards or {}
     report = StageReport(stage.name)
-    done: dict[str, ShardRecord] = {}
-    to_build: list[PlannedShard] = []
-    rejected: set[str] = set()  # present on disk but judged bad: rebuild even if a worker finds it "done"
-    for shard in shards:
-        if force:
-            to_build.append(shard)
-            continue
-        path = store.shard_path(stage.table, shard.key)
-        try:
-            done[shard.key] = store.verify(stage.table, shard.key, manifest_shards.get(shard.key))
-        except ShardError as error:
-            if path.exists():
-                log.warning("%s; rebuilding", error)
-                report.rebuilt.append(str(error))
-                rejected.add(shard.key)
-            to_build.append(shard)
-            continue
-        report.reused += 1
-        notes = read_notes(store, stage.table, shard.key)
-        if notes:
-            report.notes[shard.item.item_id] = notes
-        if on_item:
-            on_item(shard.item.item_id, "reused")
+    if force:
+        done, to_build, rejected = {}, list(shards), set()
+    else:
+        done, to_build, rejected = _sort_planned(stage, shards, store, manifest_shards or {}, report, on_item)
 
     stage_ref = f"{type(stage).__module__}:{type(stage).__qualname__}"
     tasks = [
@@ -375,6 +353,45 @@ def run_stage(
 
     report.records = [done[shard.key] for shard in shards if shard.key in done]
     return report
+
+
+def _sort_planned(
+    stage: Stage,
+    shards: Sequence[PlannedShard],
+    store: ShardStore,
+    manifest_shards: Mapping[str, str],
+    report: StageReport,
+    on_item: Callable[[str, str], None] | None,
+) -> tuple[dict[str, ShardRecord], list[PlannedShard], set[str]]:
+    """Sort planned shards into those done (verified on disk) and those to build; count the reused in ``report``.
+
+    Returns
+    -------
+    done : dict of key to ShardRecord
+    to_build : list of PlannedShard
+    rejected : set of str
+        Keys present on disk but judged bad: rebuilt even if a worker finds them "done".
+    """
+    done: dict[str, ShardRecord] = {}
+    to_build: list[PlannedShard] = []
+    rejected: set[str] = set()
+    for shard in shards:
+        try:
+            done[shard.key] = store.verify(stage.table, shard.key, manifest_shards.get(shard.key))
+        except ShardError as error:
+            if store.shard_path(stage.table, shard.key).exists():
+                log.warning("%s; rebuilding", error)
+                report.rebuilt.append(str(error))
+                rejected.add(shard.key)
+            to_build.append(shard)
+            continue
+        report.reused += 1
+        notes = read_notes(store, stage.table, shard.key)
+        if notes:
+            report.notes[shard.item.item_id] = notes
+        if on_item:
+            on_item(shard.item.item_id, "reused")
+    return done, to_build, rejected
 
 
 def _outcomes(executor: Executor, tasks: list[_BuildTask], deferred: list[int]) -> Iterator[tuple[int, Any]]:

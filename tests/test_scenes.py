@@ -159,6 +159,15 @@ def test_a_coarse_time_step_lets_objects_fall_through_the_floor_and_is_rejected(
     assert result.rejections["fell_through_floor"] >= 1
 
 
+def test_a_pile_cut_short_before_every_release_is_never_kept() -> None:
+    # 3 objects released 0.2 s apart need 0.4 s; 0.25 s of simulation leaves the third in the air.
+    params = ScenesStageParams(min_objects=3, max_objects=3, release_interval=0.2, max_sim_time=0.25,
+                               reject_unsettled=False, max_attempts=2)
+    result = generate_scene(ModelPool(fixture_models()), params, 0, 0)
+    assert result.row is None
+    assert result.rejections == Counter({"not_settled": 2})
+
+
 def test_a_rejected_attempt_is_redrawn_with_the_next_seed() -> None:
     pool = ModelPool(fixture_models())
     params = ScenesStageParams()

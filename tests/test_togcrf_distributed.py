@@ -92,7 +92,7 @@ def test_two_processes_take_the_step_of_their_averaged_gradients(data_dir: Path,
     result = subprocess.run(command, check=False, cwd=ROOT, capture_output=True, text=True, timeout=600,
                             env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert result.returncode == 0, result.stderr[-3000:]
-    checkpoint = torch.load(out / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(out / "checkpoint.pt", weights_only=True)
     rows = (out / "metrics.csv").read_text().splitlines()
     assert len(rows) == 2 and rows[1].split(",")[1:3] == ["1", "1"]  # rank 0's one step of one sample
     assert (out / "train.log").read_text().count("epoch 1/1 done") == 1  # one process reported

@@ -14,9 +14,10 @@ from typer.testing import CliRunner
 
 from osgd.contract.taxonomy import TASKS
 from osgd.store import ShardStore
+from togcrf.checkpoint import load_checkpoint
 from togcrf.cli import app
 from togcrf.evaluate import TABLE_COLUMNS, evaluate_model, format_table, table_row
-from togcrf.train import TrainConfig, load_checkpoint, train
+from togcrf.train import TrainConfig, train
 
 
 def train_briefly(data_dir: Path, run_dir: Path, model: str) -> Path:

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import pytest
 import torch
 
 from osgd.contract.taxonomy import TASK_INDEX, TASKS
 from togcrf.anchors import ANCHOR_ANGLES
-from togcrf.fcgn import FcgnTask, image_anchors
-from togcrf.model import MODEL_NAMES, build_model
-
-LOSS_KEYS = {"rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
-             "grasp_task"}
+from togcrf.fcgn import box_candidates, image_anchors
+from togcrf.losses import LOSS_KEYS
+from togcrf.model import MODEL_NAMES, FcgnOptions, GraspDetector, ModelOptions, build_model
 
 
 def _targets() -> list[dict[str, torch.Tensor]]:
@@ -46,19 +46,54 @@ def test_image_anchors_follow_the_grasp_head_order() -> None:
 def test_build_model_returns_fcgn_task() -> None:
     assert "fcgn-task" in MODEL_NAMES
     model = build_model("fcgn-task", "resnet18", fcgn_level=2, detections_per_image=7)
-    assert isinstance(model, FcgnTask)
-    assert model.stride == 16 and model.options.detections_per_image == 7
+    assert isinstance(model, GraspDetector) and model.grasp_branch == "image"
+    assert isinstance(model.options, FcgnOptions)
+    assert model.grasp_stride == 16 and model.options.detections_per_image == 7
     assert model.crf is None
     with pytest.raises(TypeError, match="unknown model options"):
         build_model("fcgn-task", "resnet18", no_such_option=1)
+    with pytest.raises(ValueError, match="fcgn_level must be 0-3"):
+        build_model("fcgn-task", "resnet18", fcgn_level=4)
+
+
+def test_fcgn_task_builds_only_its_own_grasp_head() -> None:
+    """FCGN + Task builds its own grasp head only (no TOG head built and thrown away)."""
+    model = build_model("fcgn-task", "resnet18", fcgn_channels=32, fcgn_blocks=2)
+    assert model.grasp_head.entry.out_channels == 32 and len(model.grasp_head.blocks) == 3  # 2 blocks + norm
+    assert {name.split(".")[0] for name in model.state_dict()} == {"backbone", "rpn", "roi_heads", "grasp_head"}
+    with pytest.raises(TypeError, match="FcgnOptions"):
+        GraspDetector("resnet18", options=ModelOptions(), grasp_branch="image")
+    with pytest.raises(ValueError, match="unknown grasp branch"):
+        GraspDetector("resnet18", grasp_branch="pixels")
+
+
+def test_the_fcgn_module_does_not_import_the_model_module() -> None:
+    """togcrf.model composes the branch of togcrf.fcgn: no import circle."""
+    script = "import sys, togcrf.fcgn; print('togcrf.model' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"
+
+
+def test_box_candidates_keep_the_most_stable_inside_each_box() -> None:
+    rectangles = torch.tensor([[5.0, 5.0, 4.0, 2.0, 0.1], [6.0, 6.0, 4.0, 2.0, 0.2], [50.0, 50.0, 4.0, 2.0, 0.3]])
+    stable = torch.tensor([0.2, 0.9, 0.5])
+    task_probs = torch.eye(3, len(TASKS))
+    boxes = torch.tensor([[0.0, 0.0, 10.0, 10.0], [40.0, 40.0, 60.0, 60.0]])
+    grasps, stability, probs = box_candidates(rectangles, stable, task_probs, boxes, keep=5)
+    assert grasps.shape == (2, 2, 5) and stability.shape == (2, 2) and probs.shape == (2, 2, len(TASKS))
+    assert stability.tolist() == [pytest.approx([0.9, 0.2]), pytest.approx([0.5, 0.0])]
+    assert grasps[0, 0].tolist() == rectangles[1].tolist() and grasps[1, 0].tolist() == rectangles[2].tolist()
+    assert grasps[1, 1].tolist() == [50.0, 50.0, 0.0, 0.0, 0.0]  # padding: an empty rectangle at the centre
+    assert torch.allclose(probs[1, 1], torch.full((len(TASKS),), 1 / len(TASKS)))
+    assert box_candidates(rectangles, stable, task_probs, boxes, keep=1)[0].shape == (2, 1, 5)
 
 
 def test_training_losses_fall_when_fitting_one_image() -> None:
     torch.manual_seed(0)
-    model = FcgnTask("resnet18", fcgn_channels=32)
+    model = build_model("fcgn-task", "resnet18", fcgn_channels=32)
     model.train()
     losses = model([_image()], _targets())
-    assert set(losses) == LOSS_KEYS
+    assert tuple(losses) == LOSS_KEYS
     assert all(torch.isfinite(value) and value.dim() == 0 for value in losses.values())
     # Each of the two grasps lies in one cell and within 22.5 degrees of at least one anchor angle.
     assert 2 <= model.last_training_stats["positive_candidates"] <= 4
@@ -78,8 +113,8 @@ def test_training_losses_fall_when_fitting_one_image() -> None:
 
 def test_eval_output_follows_the_contract() -> None:
     torch.manual_seed(1)
-    model = FcgnTask("resnet18", fcgn_channels=32, fcgn_candidates_per_box=20, box_score_threshold=0.0,
-                     detections_per_image=6)
+    model = build_model("fcgn-task", "resnet18", fcgn_channels=32, fcgn_candidates_per_box=20,
+                        box_score_threshold=0.0, detections_per_image=6)
     model.eval()
     with torch.inference_mode():
         outputs = model([_image(), _image()[:, :96, :120]])

@@ -7,17 +7,16 @@ import torch
 from helpers import write_synthetic_samples
 
 from osgd.store import ShardStore
+from togcrf import evaluate, reproduce, train
 from togcrf.anchors import CANDIDATES_PER_ROI, roi_anchors
 from togcrf.data import SamplesDataset, collate
-from togcrf.model import MODEL_NAMES, TogDetector, build_model, padded_object_grasps
+from togcrf.losses import LOSS_KEYS
+from togcrf.model import MODEL_NAMES, MODELS, PAPER_NAMES, GraspDetector, build_model, padded_object_grasps
 
 #: A small configuration that keeps CPU tests quick.
 SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
          "rpn_post_nms_train": 100, "rpn_pre_nms_test": 100, "rpn_post_nms_test": 50, "grasp_rois_per_image": 4,
          "detections_per_image": 5}
-
-LOSS_KEYS = {"rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
-             "grasp_task"}
 
 
 @pytest.fixture(scope="module")
@@ -44,8 +43,36 @@ def test_padded_object_grasps_groups_the_grasps_of_each_object():
     assert grasps[2, 0].tolist() == [9.0] * 5
 
 
-def test_build_model_names_and_variants():
+def test_the_registry_gives_table_two_its_rows_and_every_module_its_names():
     assert MODEL_NAMES == ("fcgn-task", "tog", "tog-crfs-omega", "tog-crfs-mu", "tog-crfs")
+    assert list(PAPER_NAMES.values()) == ["FCGN + Task", "TOG", "TOG-CRFs omega", "TOG-CRFs mu", "TOG-CRFs"]
+    assert [spec.grasp_branch for spec in MODELS.values()] == ["image", "roi", "roi", "roi", "roi"]
+    assert reproduce.TABLE_MODELS is MODEL_NAMES and evaluate.PAPER_NAMES is PAPER_NAMES
+    # The losses, in the order of the columns of metrics.csv.
+    assert LOSS_KEYS == ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability",
+                         "grasp_regression", "grasp_task")
+    assert train.LOSS_TERMS is LOSS_KEYS
+
+
+#: Checkpoint layout of each model with the default options: state-dict entries, parameter and buffer elements
+#: and top-level modules. Checkpoints of earlier versions load only while these stay the same.
+CHECKPOINT_LAYOUT = {
+    "fcgn-task": (114, 28741586, {"backbone", "rpn", "roi_heads", "grasp_head"}),
+    "tog": (124, 32043090, {"backbone", "rpn", "roi_heads", "grasp_head"}),
+    "tog-crfs-omega": (125, 32043234, {"backbone", "rpn", "roi_heads", "grasp_head", "crf"}),
+    "tog-crfs-mu": (125, 32043234, {"backbone", "rpn", "roi_heads", "grasp_head", "crf"}),
+    "tog-crfs": (126, 32043378, {"backbone", "rpn", "roi_heads", "grasp_head", "crf"}),
+}
+
+
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_the_checkpoint_layout_of_every_model_stays(name):
+    state = build_model(name, "resnet18").state_dict()
+    layout = (len(state), sum(value.numel() for value in state.values()), {key.split(".")[0] for key in state})
+    assert layout == CHECKPOINT_LAYOUT[name]
+
+
+def test_build_model_names_and_variants():
     assert build_model("tog", **SMALL).crf is None
     omega_only = build_model("tog-crfs-omega", **SMALL)
     assert omega_only.crf.omega.shape == (12, 12) and omega_only.crf.mu is None
@@ -74,7 +101,7 @@ def test_training_returns_the_losses_and_gradients_reach_the_crf(batch):
     model = build_model("tog-crfs", "resnet18", **SMALL)
     model.train()
     losses = model(images, targets)
-    assert set(losses) == LOSS_KEYS
+    assert tuple(losses) == LOSS_KEYS
     assert all(value.dim() == 0 and torch.isfinite(value) for value in losses.values())
     assert losses["grasp_task"] > 0 and model.last_training_stats["positive_candidates"] > 0
     sum(losses.values()).backward()
@@ -88,7 +115,7 @@ def test_training_returns_the_losses_and_gradients_reach_the_crf(batch):
 def test_detections_follow_the_contract(batch):
     torch.manual_seed(0)
     images, _, _ = batch
-    model: TogDetector = build_model("tog-crfs", "resnet18", box_score_threshold=0.0, **SMALL)
+    model: GraspDetector = build_model("tog-crfs", "resnet18", box_score_threshold=0.0, **SMALL)
     with torch.no_grad():
         # zero regression: every candidate is its anchor, so the rectangles must be the RoI anchors
         model.grasp_head.regression.weight.zero_()
@@ -112,9 +139,11 @@ def test_detections_follow_the_contract(batch):
         assert torch.allclose(output["grasps"], expected, atol=1e-4)
 
 
-def test_fcgn_task_is_built_by_name():
-    model = build_model("fcgn-task", "resnet18")
-    assert isinstance(model, torch.nn.Module)
+def test_every_model_is_the_one_detector_with_its_grasp_branch():
+    for name, spec in MODELS.items():
+        model = build_model(name, "resnet18", **SMALL)
+        assert type(model) is GraspDetector and model.grasp_branch == spec.grasp_branch
+        assert (model.crf is None) == (spec.crf_terms is None)
 
 
 def test_images_without_objects_train_with_zero_grasp_losses():

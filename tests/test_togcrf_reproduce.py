@@ -10,8 +10,8 @@ import torch
 from helpers import write_synthetic_samples
 
 from osgd.store import ShardStore
+from togcrf.checkpoint import load_checkpoint
 from togcrf.reproduce import CPU_SCALE, GPU_SCALE, SMALL_SCALE, reproduce, resolve_scale
-from togcrf.train import load_checkpoint
 
 
 def test_scales_and_the_cpu_recipe():

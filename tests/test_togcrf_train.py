@@ -17,11 +17,12 @@ from typer.testing import CliRunner
 
 from osgd.store import ShardStore
 from togcrf.anchors import decode
+from togcrf.checkpoint import load_checkpoint
 from togcrf.cli import app
 from togcrf.data import SamplesDataset, collate
 from togcrf.metrics import right_tasks
 from togcrf.model import batch_images, build_model
-from togcrf.train import LOSS_TERMS, TrainConfig, load_checkpoint, train
+from togcrf.train import LOSS_TERMS, TrainConfig, train
 
 #: A small model that keeps CPU runs quick (see tests/test_togcrf_model.py).
 SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
@@ -70,7 +71,7 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
     train(quick_config(data_dir, tmp_path / "resumed", epochs=2, resume=True))
 
     run_dir = tmp_path / "resumed"
-    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     assert set(checkpoint) >= {"model", "optimizer", "scheduler", "epoch", "config", "data"}
     assert checkpoint["epoch"] == 1
     assert checkpoint["config"]["model"] == "tog-crfs" and checkpoint["config"]["image_size"] == 64
@@ -82,7 +83,7 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
     assert json.loads((run_dir / "config.json").read_text())["backbone"] == "resnet18"
 
     # same seed, same data order and augmentation: resuming gives the uninterrupted run's weights
-    reference = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=False)["model"]
+    reference = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=True)["model"]
     for name, value in checkpoint["model"].items():
         assert torch.allclose(value.float(), reference[name].float(), atol=1e-5), name
 
@@ -96,12 +97,12 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
 def test_init_starts_from_the_weights_of_another_run(data_dir, tmp_path):
     source = quick_config(data_dir, tmp_path / "source", model="tog")
     train(source)
-    weights = torch.load(tmp_path / "source" / "checkpoint.pt", weights_only=False)["model"]
+    weights = torch.load(tmp_path / "source" / "checkpoint.pt", weights_only=True)["model"]
     # zero steps of a fresh run at lr ~0 keep the initial weights: they are the source's
     tuned = quick_config(data_dir, tmp_path / "tuned", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
                          lr=1e-12, warmup_steps=0, clip_grad_norm=0.0)
     train(tuned)
-    tuned_weights = torch.load(tmp_path / "tuned" / "checkpoint.pt", weights_only=False)["model"]
+    tuned_weights = torch.load(tmp_path / "tuned" / "checkpoint.pt", weights_only=True)["model"]
     assert all(torch.allclose(tuned_weights[name].float(), value.float(), atol=1e-6) for name, value in weights.items())
     with pytest.raises(ValueError, match=r"--init .*layers differ"):
         train(quick_config(data_dir, tmp_path / "other", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
@@ -337,7 +338,7 @@ def test_time_budget_ends_the_run_and_resume_does_not_continue_it(data_dir, tmp_
     run_dir = tmp_path / "run"
     result = train(quick_config(data_dir, run_dir, epochs=5, max_samples=4, time_budget_minutes=1e-6))
     assert result["steps"] == 1  # the first step already spends the budget
-    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=False)
+    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     assert checkpoint["epoch"] == 0 and checkpoint["stopped_by_budget"]
     assert train(quick_config(data_dir, run_dir, epochs=5, max_samples=4, time_budget_minutes=1e-6,
                               resume=True)) == {}

@@ -6,10 +6,12 @@ through a ``register(app)`` function, so this file stays a table of contents.
 
 from __future__ import annotations
 
-import importlib
 import logging
 
 import typer
+
+from togcrf import curves, evaluate, figures, predict, reproduce, train
+from togcrf.robot import cli as robot_cli
 
 app = typer.Typer(
     help="Train and evaluate the TOG / TOG-CRFs task-oriented grasp detectors on osgd samples.",
@@ -19,15 +21,7 @@ app = typer.Typer(
 )
 
 #: Modules that add commands, in the order they appear in --help.
-COMMAND_MODULES = (
-    "togcrf.train",
-    "togcrf.curves",
-    "togcrf.evaluate",
-    "togcrf.predict",
-    "togcrf.figures",
-    "togcrf.reproduce",
-    "togcrf.robot.cli",
-)
+COMMAND_MODULES = (train, curves, evaluate, predict, figures, reproduce, robot_cli)
 
 
 @app.callback()
@@ -38,13 +32,7 @@ def main(
                         format="%(levelname)s %(name)s: %(message)s")
 
 
-for _module_name in COMMAND_MODULES:
-    try:
-        _module = importlib.import_module(_module_name)
-    except ModuleNotFoundError as _error:
-        if _error.name != _module_name:
-            raise
-        continue
+for _module in COMMAND_MODULES:
     _module.register(app)
 
 

@@ -43,7 +43,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from osgd.contract.samples import Sample, decode_row, sample_shards
+from osgd.contract.samples import Sample, decode_row, sample_shards, samples_vocabulary
 
 logger = logging.getLogger(__name__)
 
@@ -381,6 +381,8 @@ class SamplesDataset(Dataset):
         self.scale_jitter = scale_jitter
         self.epoch = 0
         self.shards = sample_shards(self.data_dir, pipeline)
+        #: The categories and tasks the shards were labelled with (``osgd.contract.taxonomy.VOCABULARY``).
+        self.vocabulary = samples_vocabulary(self.shards)
         index: list[tuple[int, int]] = []
         for shard_number, path in enumerate(self.shards):
             try:

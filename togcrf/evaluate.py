@@ -30,7 +30,9 @@ import numpy as np
 import torch
 import typer
 
+from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.metrics import PROTOCOLS, TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
+from togcrf.model import PAPER_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -39,15 +41,6 @@ TABLE_COLUMNS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10", "fps
 
 #: Name of the evaluation file a run dir holds.
 EVAL_FILE = "eval.json"
-
-#: Paper names of the models (Table II).
-PAPER_NAMES = {
-    "fcgn-task": "FCGN + Task",
-    "tog": "TOG",
-    "tog-crfs-omega": "TOG-CRFs omega",
-    "tog-crfs-mu": "TOG-CRFs mu",
-    "tog-crfs": "TOG-CRFs",
-}
 
 
 def prediction_to_numpy(output: dict[str, torch.Tensor], scale: float) -> Detections:
@@ -260,8 +253,7 @@ def evaluate_checkpoint(
     """
     from itertools import islice  # noqa: PLC0415
 
-    from osgd.contract.samples import iter_samples  # noqa: PLC0415
-    from togcrf.train import load_checkpoint  # noqa: PLC0415
+    from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary  # noqa: PLC0415
 
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}: expected one of {', '.join(PROTOCOLS)}")
@@ -269,7 +261,9 @@ def evaluate_checkpoint(
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
     model, config = load_checkpoint(checkpoint, device=device)
-    samples = iter_samples(data_dir, pipeline=pipeline, split=split)
+    shards = sample_shards(data_dir, pipeline)
+    check_vocabulary(config["vocabulary"], samples_vocabulary(shards), str(checkpoint), f"{data_dir}/samples")
+    samples = iter_samples(data_dir, split=split, shards=shards)
     if max_samples is not None:
         samples = islice(samples, max_samples)
     try:

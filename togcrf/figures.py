@@ -21,6 +21,7 @@ import torch
 import typer
 
 from osgd.contract.taxonomy import TASKS
+from togcrf.checkpoint import load_checkpoint
 from togcrf.evaluate import write_json
 
 log = logging.getLogger(__name__)
@@ -97,7 +98,6 @@ def figures_command(
     out: Annotated[Path, typer.Option("--out", help="Folder for omega.png, mu.png, figure5.png, crf.json.")],
 ) -> None:
     """Draw the learned CRF matrices omega and mu as heat maps (the paper's figure 5)."""
-    from togcrf.train import load_checkpoint  # noqa: PLC0415
 
     try:
         if not Path(checkpoint).is_file():

@@ -7,7 +7,9 @@
 - task: cross entropy of the positive candidates' task targets against the
   log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG).
 
-The RPN and RCNN losses are torchvision's (``togcrf.model``).
+The RPN and RCNN losses are torchvision's (``togcrf.model``). ``LOSS_KEYS``
+are the names of the losses every model returns in train mode, defined here
+only (``togcrf.model`` and ``togcrf.train`` import them).
 """
 
 from __future__ import annotations
@@ -17,6 +19,14 @@ from torch.nn import functional
 
 #: Negatives kept per positive candidate (REFERENCE section 3).
 DEFAULT_NEGATIVE_RATIO = 3
+
+#: The losses of a model in train mode, in the order of the columns of metrics.csv (``togcrf.train``): RPN
+#: objectness and box, RCNN class and box, then the grasp branch's (``GRASP_LOSS_KEYS``).
+LOSS_KEYS = ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
+             "grasp_task")
+
+#: The losses of :func:`grasp_losses`: stability, regression, task.
+GRASP_LOSS_KEYS = LOSS_KEYS[4:]
 
 
 def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int,
@@ -79,11 +89,12 @@ def grasp_losses(
 
     Returns
     -------
-    dict with scalar tensors "grasp_stability", "grasp_regression", "grasp_task".
+    dict of scalar tensors
+        ``GRASP_LOSS_KEYS``: "grasp_stability", "grasp_regression", "grasp_task".
     """
     if positive.numel() == 0:
         zero = stability_logits.sum() * 0 + regression.sum() * 0 + task_log_probs.sum() * 0
-        return {"grasp_stability": zero, "grasp_regression": zero, "grasp_task": zero}
+        return dict.fromkeys(GRASP_LOSS_KEYS, zero)
     labels = positive.to(torch.int64)
     per_candidate = functional.cross_entropy(
         stability_logits.reshape(-1, 2).float(), labels.reshape(-1), reduction="none"
@@ -96,7 +107,7 @@ def grasp_losses(
     ) / positives
     task_per_candidate = -(task_targets * task_log_probs.float()).sum(dim=-1)
     task = (task_per_candidate * positive).sum() / positives
-    return {"grasp_stability": stability, "grasp_regression": regression_loss, "grasp_task": task}
+    return dict(zip(GRASP_LOSS_KEYS, (stability, regression_loss, task), strict=True))
 
 
 def top1_task_hits(

@@ -1,15 +1,23 @@
-"""The TOG and TOG-CRFs detectors (paper, Section IV-B/C, Fig. 3).
+"""The models of Table II: TOG, TOG-CRFs (paper, Section IV-B/C, Fig. 3) and FCGN + Task.
 
-Depth image -> ResNet (1-channel input, trainable GroupNorm or BatchNorm, no
-pretrained weights) with a feature pyramid -> RPN -> RoIAlign 7 x 7 -> two
-branches on the pooled features of each RoI:
+Every model is one :class:`GraspDetector`: depth image -> ResNet (1-channel
+input, trainable GroupNorm or BatchNorm, no pretrained weights) with a
+feature pyramid -> RPN -> RoIAlign 7 x 7 -> the RCNN box branch
+(torchvision's two-layer MLP head and predictor: box refinement and the 10
+categories plus background), and one grasp branch, as torchvision's
+``RoIHeads`` holds its box, mask and keypoint branches:
 
-- the RCNN head (torchvision's two-layer MLP head and predictor): box
-  refinement and the 10 categories plus background;
-- the grasp detector: 3 ResBlocks, then three 3 x 3 convolutions with 4 x 5
-  regression, 4 x 2 stability and 4 x 12 task channels: 196 candidates per
-  RoI (``togcrf.anchors``). For the CRF variants the task logits go through
-  :class:`togcrf.crf.MeanFieldCrf`.
+- "roi" (TOG and TOG-CRFs): on the pooled features of each RoI, 3
+  ResBlocks, then three 3 x 3 convolutions with 4 x 5 regression, 4 x 2
+  stability and 4 x 12 task channels: 196 candidates per RoI
+  (``togcrf.anchors``);
+- "image" (FCGN + Task, ``togcrf.fcgn``): the same convolutions on one FPN
+  map of the whole image, 4 candidates per cell, given at inference to the
+  detected boxes that contain them.
+
+For the CRF variants the task logits go through
+:class:`togcrf.crf.MeanFieldCrf`. ``MODELS`` is the registry of the model
+names (Table II's rows, in order); :func:`build_model` builds one by name.
 
 Our choices, documented against the paper: a feature pyramid (torchvision's
 ``resnet_fpn_backbone``) in place of the single C4 map, because the objects
@@ -17,15 +25,15 @@ span a wide range of sizes and it is torchvision's supported path;
 GroupNorm by default, because batch statistics of 2-4 depth images are
 noisy and GroupNorm behaves the same in training and evaluation (REFERENCE
 section 8: the frozen batch norm default diverges from scratch). During
-training the grasp branch runs on up to ``grasp_rois_per_image`` of the
+training the "roi" grasp branch runs on up to ``grasp_rois_per_image`` of the
 RCNN's sampled foreground RoIs (ground-truth boxes plus proposals with IoU >=
 0.5), each taking its grasp targets from the object it is matched to.
 Per-class box NMS at 0.5, not ROI-GD's 0.3, so that overlapping objects of
 one category in a pile can both be detected (``ModelOptions``).
 
 The model API is the contract in ``docs/togcrf.md``: train mode returns a
-dict of scalar losses, eval mode a list of per-image detections with grasp
-candidates.
+dict of scalar losses (``togcrf.losses.LOSS_KEYS``), eval mode a list of
+per-image detections with grasp candidates.
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, fields
+from typing import NamedTuple
 
 import torch
 from torch import nn
@@ -51,20 +60,50 @@ from torchvision.ops.poolers import initLevelMapper
 from osgd.contract.taxonomy import CATEGORIES, TASKS
 from togcrf.anchors import ANCHOR_ANGLES, DEFAULT_ANCHOR_SIZE, GRID, decode, match, near_ground_truth, roi_anchors
 from togcrf.crf import DEFAULT_BANDWIDTH, DEFAULT_ITERATIONS, MeanFieldCrf
-from togcrf.losses import DEFAULT_NEGATIVE_RATIO, grasp_losses, top1_task_hits
+from togcrf.fcgn import box_candidates, image_anchors, image_grasp_targets
+from togcrf.losses import DEFAULT_NEGATIVE_RATIO, LOSS_KEYS, grasp_losses, top1_task_hits
 
 logger = logging.getLogger(__name__)
 
-#: Model names, in the order of Table II.
-MODEL_NAMES = ("fcgn-task", "tog", "tog-crfs-omega", "tog-crfs-mu", "tog-crfs")
+#: Grasp branches of :class:`GraspDetector`: "roi" (TOG: candidates in each RoI of the RCNN) and "image"
+#: (FCGN + Task: candidates over the whole image's feature map, ``togcrf.fcgn``).
+GRASP_BRANCHES = ("roi", "image")
 
-#: Which CRF terms each TOG variant uses: (omega, mu); None = no CRF.
-CRF_TERMS: dict[str, tuple[bool, bool] | None] = {
-    "tog": None,
-    "tog-crfs-omega": (True, False),
-    "tog-crfs-mu": (False, True),
-    "tog-crfs": (True, True),
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """One model of Table II.
+
+    Attributes
+    ----------
+    paper_name : str
+        Its row name in Table II.
+    grasp_branch : {"roi", "image"}
+        Its grasp branch (``GRASP_BRANCHES``).
+    crf_terms : (bool, bool) or None
+        ``(use_omega, use_mu)`` of its task CRF; None: no CRF.
+    """
+
+    paper_name: str
+    grasp_branch: str
+    crf_terms: tuple[bool, bool] | None = None
+
+
+#: The registry of the models, by name, in the row order of Table II: the only list of model names
+#: (``togcrf.train``, ``togcrf.evaluate`` and ``togcrf.reproduce`` import theirs from here).
+MODELS: dict[str, ModelSpec] = {
+    "fcgn-task": ModelSpec("FCGN + Task", "image"),
+    "tog": ModelSpec("TOG", "roi"),
+    "tog-crfs-omega": ModelSpec("TOG-CRFs omega", "roi", (True, False)),
+    "tog-crfs-mu": ModelSpec("TOG-CRFs mu", "roi", (False, True)),
+    "tog-crfs": ModelSpec("TOG-CRFs", "roi", (True, True)),
 }
+
+#: Model names, in the order of Table II.
+MODEL_NAMES = tuple(MODELS)
+
+#: Row names of Table II, by model name.
+PAPER_NAMES = {name: spec.paper_name for name, spec in MODELS.items()}
 
 #: Supported ResNet depths (the paper uses resnet101).
 BACKBONES = ("resnet18", "resnet34", "resnet50", "resnet101")
@@ -78,7 +117,9 @@ SIZE_DIVISIBLE = 32
 
 @dataclass(frozen=True)
 class ModelOptions:
-    """Options of the TOG models (every one has a default; all go into checkpoints).
+    """Options of the models (every one has a default; all go into checkpoints).
+
+    Those of the "roi" grasp branch (TOG); FCGN + Task's are :class:`FcgnOptions`.
 
     Attributes
     ----------
@@ -182,6 +223,42 @@ class ModelOptions:
         return ModelOptions(**values)
 
 
+@dataclass(frozen=True)
+class FcgnOptions(ModelOptions):
+    """Options of FCGN + Task (the "image" grasp branch): those of :class:`ModelOptions` plus the branch's.
+
+    A subclass of :class:`ModelOptions`, so the training code stores every
+    field in checkpoints and the model is rebuilt the same.
+
+    Attributes
+    ----------
+    fcgn_level : int
+        FPN level the grasp branch runs on: "0"-"3" are strides 4-32 px.
+    fcgn_channels : int
+        Channels of the grasp branch's ResBlocks.
+    fcgn_blocks : int
+        ResBlocks before the output convolutions.
+    fcgn_candidates_per_box : int
+        Most stable candidates kept per detected box at inference.
+    """
+
+    fcgn_level: int = 1
+    fcgn_channels: int = 128
+    fcgn_blocks: int = 1
+    fcgn_candidates_per_box: int = 196
+
+    @staticmethod
+    def from_dict(options: dict) -> FcgnOptions:
+        """Options from keyword values; unknown names raise a TypeError that lists the known ones."""
+        own = {field.name for field in fields(FcgnOptions)} - {field.name for field in fields(ModelOptions)}
+        base = ModelOptions.from_dict({key: value for key, value in options.items() if key not in own})
+        return FcgnOptions(**asdict(base), **{key: value for key, value in options.items() if key in own})
+
+
+#: The options of each grasp branch.
+BRANCH_OPTIONS: dict[str, type[ModelOptions]] = {"roi": ModelOptions, "image": FcgnOptions}
+
+
 def norm_layer(kind: str) -> type[nn.Module] | callable:
     """A constructor ``channels -> normalisation module`` for ``kind`` in {"group", "batch"}."""
     if kind == "batch":
@@ -251,9 +328,11 @@ class ResBlock(nn.Module):
 class GraspHead(nn.Module):
     """3 ResBlocks and the regression, stability and task convolutions (paper, Section IV-B).
 
-    Input (R, C, 7, 7) pooled RoI features; outputs per candidate, in the
-    candidate order of ``togcrf.anchors``: regression (R, 196, 5), stability
-    logits (R, 196, 2), task logits (R, 196, 12).
+    Input (R, C, H, W) features: pooled RoIs, 7 x 7 (the "roi" branch), or
+    whole FPN maps (the "image" branch). Outputs per candidate, 4 per cell,
+    cell (i, j) angle a being candidate (i * W + j) * 4 + a (the order of
+    ``togcrf.anchors``): regression (R, H * W * 4, 5), stability logits
+    (R, H * W * 4, 2), task logits (R, H * W * 4, 12); 196 candidates per RoI.
     """
 
     def __init__(self, in_channels: int, channels: int, norm: str, task_count: int = len(TASKS),
@@ -338,54 +417,232 @@ def padded_object_grasps(targets: list[dict[str, torch.Tensor]]) -> tuple[torch.
     return padded, valid, padded_tasks, first_object
 
 
-class TogDetector(nn.Module):
-    """TOG / TOG-CRFs: detector, grasp head and (optionally) the task CRF.
+class GraspOutputs(NamedTuple):
+    """A grasp branch's outputs: R RoIs or images of K candidates.
+
+    Attributes
+    ----------
+    regression : (R, K, 5) float
+        Encoded deltas (``togcrf.anchors.encode``).
+    stability : (R, K, 2) float
+        Stability logits, index 1 = stable.
+    task_log_probs : (R, K, T) float32
+        ``log P(task | stable)``.
+    anchors : (R, K, 5) or (K, 5) float32
+        The candidates' anchors (those of the "image" branch are the same for every image).
+    """
+
+    regression: torch.Tensor
+    stability: torch.Tensor
+    task_log_probs: torch.Tensor
+    anchors: torch.Tensor
+
+
+class GraspTargets(NamedTuple):
+    """Training targets of a grasp branch's candidates (``togcrf.anchors.match``).
+
+    Attributes
+    ----------
+    positive : (R, K) bool
+    regression : (R, K, 5) float
+    tasks : (R, K, T) float
+        Soft task labels of the positives.
+    ignored : (R, K) bool or None
+        Candidates that may not be hard negatives.
+    """
+
+    positive: torch.Tensor
+    regression: torch.Tensor
+    tasks: torch.Tensor
+    ignored: torch.Tensor | None = None
+
+
+def build_rpn(options: ModelOptions) -> RegionProposalNetwork:
+    """torchvision's RPN with one anchor size and 3 aspect ratios per FPN level ("pool" included)."""
+    strides = fpn_strides(options)
+    levels = len(strides) + 1  # the "pool" level of the RPN
+    if len(options.rpn_anchor_sizes) != levels:
+        raise ValueError(f"rpn_anchor_sizes {options.rpn_anchor_sizes}: expected {levels} sizes, one per FPN "
+                         f"level (strides {(*strides, 2 * strides[-1])})")
+    anchor_generator = AnchorGenerator(tuple((size,) for size in options.rpn_anchor_sizes),
+                                       ((0.5, 1.0, 2.0),) * levels)
+    return RegionProposalNetwork(
+        anchor_generator, RPNHead(options.fpn_channels, 3),
+        fg_iou_thresh=0.7, bg_iou_thresh=0.3, batch_size_per_image=256, positive_fraction=0.5,
+        pre_nms_top_n={"training": options.rpn_pre_nms_train, "testing": options.rpn_pre_nms_test},
+        post_nms_top_n={"training": options.rpn_post_nms_train, "testing": options.rpn_post_nms_test},
+        nms_thresh=options.rpn_nms_threshold,
+    )
+
+
+def build_roi_heads(options: ModelOptions) -> RoIHeads:
+    """torchvision's RoIHeads: RoIAlign 7 x 7 on the FPN maps, the RCNN's two-layer MLP head and predictor."""
+    strides = fpn_strides(options)
+    roi_pool = MultiScaleRoIAlign([str(level) for level in range(len(strides))], output_size=GRID,
+                                  sampling_ratio=2)
+    # torchvision infers the level scales from the first batch's image sizes and caches them; with
+    # small images padded to a multiple of 32 that guess is off by a level, and it would depend on
+    # which batch came first: the FPN strides are known, so fix the scales.
+    roi_pool.scales = [1.0 / stride for stride in strides]
+    roi_pool.map_levels = initLevelMapper(int(math.log2(strides[0])), int(math.log2(strides[-1])))
+    return RoIHeads(
+        roi_pool, TwoMLPHead(options.fpn_channels * GRID * GRID, options.box_head_size),
+        FastRCNNPredictor(options.box_head_size, len(CATEGORIES) + 1),
+        fg_iou_thresh=0.5, bg_iou_thresh=0.5, batch_size_per_image=options.box_batch_per_image,
+        positive_fraction=0.25, bbox_reg_weights=None, score_thresh=options.box_score_threshold,
+        nms_thresh=options.box_nms_threshold, detections_per_img=options.detections_per_image,
+    )
+
+
+def image_branch_stride(grasp_branch: str, options: ModelOptions) -> int | None:
+    """Pixels per cell of the "image" branch's FPN map (None for the "roi" branch), the branch checked.
+
+    Raises
+    ------
+    ValueError
+        Unknown branch, or ``fcgn_level`` not an FPN level.
+    TypeError
+        The "image" branch without :class:`FcgnOptions`.
+    """
+    if grasp_branch not in GRASP_BRANCHES:
+        raise ValueError(f"unknown grasp branch {grasp_branch!r}; expected one of {GRASP_BRANCHES}")
+    if grasp_branch == "roi":
+        return None
+    if not isinstance(options, FcgnOptions):
+        raise TypeError(f"the 'image' grasp branch needs FcgnOptions, got {type(options).__name__}")
+    strides = fpn_strides(options)
+    if not 0 <= options.fcgn_level < len(strides):
+        raise ValueError(f"fcgn_level must be 0-{len(strides) - 1} (FPN strides {strides}), "
+                         f"got {options.fcgn_level}")
+    return strides[options.fcgn_level]
+
+
+def build_grasp_head(grasp_branch: str, options: ModelOptions) -> GraspHead:
+    """The grasp head of a branch: 3 ResBlocks of ``grasp_channels`` ("roi") or ``fcgn_blocks`` of
+    ``fcgn_channels`` ("image")."""
+    if grasp_branch == "image":
+        return GraspHead(options.fpn_channels, options.fcgn_channels, options.norm, blocks=options.fcgn_blocks,
+                         output_norm=options.grasp_trunk_norm)
+    return GraspHead(options.fpn_channels, options.grasp_channels, options.norm,
+                     output_norm=options.grasp_trunk_norm)
+
+
+def grasp_training_rois(proposals: list[torch.Tensor], labels: list[torch.Tensor], matched: list[torch.Tensor],
+                        first_object: torch.Tensor, limit: int) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """The RoIs that train the "roi" branch: up to ``limit`` random foreground RoIs of each image.
+
+    Parameters
+    ----------
+    proposals : list of (n_b, 4) float
+        The RCNN's sampled RoIs of each image (ground-truth boxes among them).
+    labels : list of (n_b,) int64
+        Their categories; 0 = background.
+    matched : list of (n_b,) int64
+        The object of its image each RoI is matched to.
+    first_object : (B,) int64
+        Row of each image's first object in :func:`padded_object_grasps`.
+    limit : int
+
+    Returns
+    -------
+    rois : list of (m_b, 4) float
+        Detached.
+    owners : (sum m_b,) int64
+        Row of each RoI's object in :func:`padded_object_grasps`.
+    """
+    rois, owners = [], []
+    for image_index, (image_proposals, image_labels, image_matched) in enumerate(
+            zip(proposals, labels, matched, strict=True)):
+        foreground = torch.nonzero(image_labels > 0).flatten()
+        if len(foreground) > limit:
+            keep = torch.randperm(len(foreground), device=foreground.device)[:limit]
+            foreground = foreground[keep]
+        rois.append(image_proposals[foreground].detach())
+        owners.append(image_matched[foreground] + first_object[image_index])
+    return rois, torch.cat(owners)
+
+
+#: The ``ModelOptions`` weight of each loss of ``LOSS_KEYS``, in its order.
+LOSS_WEIGHTS = dict(zip(LOSS_KEYS, ("weight_rpn", "weight_rpn", "weight_rcnn", "weight_rcnn", "weight_stability",
+                                    "weight_regression", "weight_task"), strict=True))
+
+#: torchvision's names of the RPN and RCNN losses, the first four of ``LOSS_KEYS``.
+TORCHVISION_LOSSES = dict(zip(LOSS_KEYS[:4], ("loss_objectness", "loss_rpn_box_reg", "loss_classifier",
+                                              "loss_box_reg"), strict=True))
+
+
+def weighted_losses(options: ModelOptions, detector_losses: dict[str, torch.Tensor],
+                    grasp: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The losses a model returns: each of ``LOSS_KEYS``, in its order, times its weight.
+
+    Parameters
+    ----------
+    options : ModelOptions
+    detector_losses : dict of scalar tensors
+        torchvision's RPN and RCNN losses, by torchvision's names.
+    grasp : dict of scalar tensors
+        ``togcrf.losses.grasp_losses``.
+    """
+    values = {key: detector_losses[name] for key, name in TORCHVISION_LOSSES.items()} | grasp
+    return {key: getattr(options, LOSS_WEIGHTS[key]) * values[key] for key in LOSS_KEYS}
+
+
+def detection_output(detection: dict[str, torch.Tensor], grasps: torch.Tensor, stability: torch.Tensor,
+                     task_probs: torch.Tensor) -> dict[str, torch.Tensor]:
+    """One image's output in eval mode (the contract): its detections with their grasp candidates.
+
+    Parameters
+    ----------
+    detection : dict
+        The RCNN's ``boxes`` (N, 4), ``labels`` (N,) and ``scores`` (N,).
+    grasps : (N, K, 5) float
+        Rectangles ``(x, y, h, w, theta)``, pixels of the network input.
+    stability : (N, K) float
+        P(stable).
+    task_probs : (N, K, T) float
+    """
+    return {
+        "boxes": detection["boxes"].float(),
+        "labels": detection["labels"],
+        "scores": detection["scores"].float(),
+        "grasps": grasps,
+        "grasp_stability": stability,
+        "grasp_task_probs": task_probs,
+    }
+
+
+class GraspDetector(nn.Module):
+    """The detector of every model: backbone, RPN, RCNN box branch, one grasp branch and the task CRF.
+
+    Both grasp branches share the detector, the :class:`GraspHead` and the
+    losses; the attributes, and so the checkpoint keys, are the same:
+    ``backbone``, ``rpn``, ``roi_heads`` (torchvision's, for the boxes),
+    ``grasp_head`` and ``crf`` (None without the CRF).
 
     Parameters
     ----------
     backbone : str
         One of ``BACKBONES``.
     crf_terms : (bool, bool) or None
-        ``(use_omega, use_mu)`` of the CRF; None for TOG (no CRF).
+        ``(use_omega, use_mu)`` of the CRF; None: no CRF.
     options : ModelOptions
+        :class:`FcgnOptions` for the "image" branch.
+    grasp_branch : {"roi", "image"}
+        "roi": TOG's, on the RoIs; "image": FCGN's, on FPN map ``fcgn_level`` of the whole image.
     """
 
     def __init__(self, backbone: str = "resnet18", crf_terms: tuple[bool, bool] | None = None,
-                 options: ModelOptions | None = None) -> None:
+                 options: ModelOptions | None = None, grasp_branch: str = "roi") -> None:
         super().__init__()
         self.options = options = options or ModelOptions()
+        self.grasp_branch = grasp_branch
+        #: Pixels per cell of the "image" branch's feature map; None for the "roi" branch.
+        self.grasp_stride = image_branch_stride(grasp_branch, options)
         self.backbone = build_backbone(backbone, options.norm, options.fpn_channels, options.fpn_min_stride,
                                        options.fpn_norm)
-        strides = fpn_strides(options)
-        levels = len(strides) + 1  # the "pool" level of the RPN
-        if len(options.rpn_anchor_sizes) != levels:
-            raise ValueError(f"rpn_anchor_sizes {options.rpn_anchor_sizes}: expected {levels} sizes, one per FPN "
-                             f"level (strides {(*strides, 2 * strides[-1])})")
-        anchor_generator = AnchorGenerator(tuple((size,) for size in options.rpn_anchor_sizes),
-                                           ((0.5, 1.0, 2.0),) * levels)
-        self.rpn = RegionProposalNetwork(
-            anchor_generator, RPNHead(options.fpn_channels, 3),
-            fg_iou_thresh=0.7, bg_iou_thresh=0.3, batch_size_per_image=256, positive_fraction=0.5,
-            pre_nms_top_n={"training": options.rpn_pre_nms_train, "testing": options.rpn_pre_nms_test},
-            post_nms_top_n={"training": options.rpn_post_nms_train, "testing": options.rpn_post_nms_test},
-            nms_thresh=options.rpn_nms_threshold,
-        )
-        roi_pool = MultiScaleRoIAlign([str(level) for level in range(len(strides))], output_size=GRID,
-                                      sampling_ratio=2)
-        # torchvision infers the level scales from the first batch's image sizes and caches them; with
-        # small images padded to a multiple of 32 that guess is off by a level, and it would depend on
-        # which batch came first: the FPN strides are known, so fix the scales.
-        roi_pool.scales = [1.0 / stride for stride in strides]
-        roi_pool.map_levels = initLevelMapper(int(math.log2(strides[0])), int(math.log2(strides[-1])))
-        self.roi_heads = RoIHeads(
-            roi_pool, TwoMLPHead(options.fpn_channels * GRID * GRID, options.box_head_size),
-            FastRCNNPredictor(options.box_head_size, len(CATEGORIES) + 1),
-            fg_iou_thresh=0.5, bg_iou_thresh=0.5, batch_size_per_image=options.box_batch_per_image,
-            positive_fraction=0.25, bbox_reg_weights=None, score_thresh=options.box_score_threshold,
-            nms_thresh=options.box_nms_threshold, detections_per_img=options.detections_per_image,
-        )
-        self.grasp_head = GraspHead(options.fpn_channels, options.grasp_channels, options.norm,
-                                    output_norm=options.grasp_trunk_norm)
+        self.rpn = build_rpn(options)
+        self.roi_heads = build_roi_heads(options)
+        self.grasp_head = build_grasp_head(grasp_branch, options)
         self.crf = None if crf_terms is None else MeanFieldCrf(
             len(TASKS), use_omega=crf_terms[0], use_mu=crf_terms[1],
             iterations=options.crf_iterations, bandwidth=options.crf_bandwidth,
@@ -402,21 +659,52 @@ class TogDetector(nn.Module):
             return self.crf(logits)
 
     def grasp_outputs(self, features: dict[str, torch.Tensor], rois: list[torch.Tensor],
-                      image_sizes: list[tuple[int, int]]) -> tuple[torch.Tensor, ...]:
-        """Grasp branch on RoIs (a list of (n_b, 4) boxes per image).
+                      image_sizes: list[tuple[int, int]]) -> GraspOutputs:
+        """The grasp head on RoIs (a list of (n_b, 4) boxes per image), as the "roi" branch runs it.
 
         Returns
         -------
-        regression (R, 196, 5), stability_logits (R, 196, 2), task_log_probs (R, 196, 12), anchors (R, 196, 5)
+        GraspOutputs
+            R = all RoIs, K = 196; anchors (R, 196, 5).
         """
         pooled = self.roi_heads.box_roi_pool(features, rois, image_sizes)
         regression, stability, task_logits = self.grasp_head(pooled)
         all_rois = torch.cat(rois) if rois else pooled.new_zeros((0, 4))
         anchors = roi_anchors(all_rois.float(), self.options.grasp_anchor_size)
-        return regression, stability, self.task_log_probs(task_logits), anchors
+        return GraspOutputs(regression, stability, self.task_log_probs(task_logits), anchors)
 
-    def forward(self, images: list[torch.Tensor], targets: list[dict[str, torch.Tensor]] | None = None):
-        """Losses (train mode, with targets) or detections (eval mode); see the module docstring."""
+    def image_grasp_outputs(self, features: dict[str, torch.Tensor]) -> GraspOutputs:
+        """The grasp head on FPN map ``fcgn_level`` of every image, as the "image" branch runs it.
+
+        Returns
+        -------
+        GraspOutputs
+            R = images, K = 4 per cell of the map; anchors (K, 5).
+        """
+        level = features[str(self.options.fcgn_level)]
+        regression, stability, task_logits = self.grasp_head(level)
+        anchors = image_anchors(level.shape[2], level.shape[3], self.grasp_stride, self.options.grasp_anchor_size,
+                                device=level.device)
+        return GraspOutputs(regression, stability, self.task_log_probs(task_logits), anchors)
+
+    def forward(self, images: list[torch.Tensor], targets: list[dict[str, torch.Tensor]] | None = None,
+                ) -> dict[str, torch.Tensor] | list[dict[str, torch.Tensor]]:
+        """Losses (train mode, with targets) or detections (eval mode); see the module docstring.
+
+        Parameters
+        ----------
+        images : list of (1, H, W) float
+            Depth images.
+        targets : list of dict, optional
+            Per image (train mode): ``boxes`` (N, 4), ``labels`` (N,), ``grasps`` (M, 5),
+            ``grasp_objects`` (M,) and ``grasp_tasks`` (M,).
+
+        Returns
+        -------
+        dict of scalar tensors or list of dict
+            Train mode: the losses, ``LOSS_KEYS``. Eval mode, per image: ``boxes`` (N, 4), ``labels`` (N,),
+            ``scores`` (N,), ``grasps`` (N, K, 5), ``grasp_stability`` (N, K), ``grasp_task_probs`` (N, K, 12).
+        """
         image_list = batch_images(images)
         features = self.backbone(image_list.tensors)
         if self.training:
@@ -425,78 +713,104 @@ class TogDetector(nn.Module):
             return self._training_losses(image_list, features, targets)
         proposals, _ = self.rpn(image_list, features)
         detections, _ = self.roi_heads(features, proposals, image_list.image_sizes)
-        return self._detect_grasps(features, detections, image_list.image_sizes)
+        if self.grasp_branch == "image":
+            return self._image_detections(features, detections)
+        return self._roi_detections(features, detections, image_list.image_sizes)
 
     def _training_losses(self, image_list: ImageList, features: dict[str, torch.Tensor],
                          targets: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
-        options = self.options
+        """RPN, RCNN box branch and grasp branch in train mode: the weighted ``LOSS_KEYS``."""
         proposals, rpn_losses = self.rpn(image_list, features, targets)
+        sampled, box_losses = self._box_losses(features, proposals, image_list.image_sizes, targets)
+        if self.grasp_branch == "image":
+            outputs, grasp_targets = self._image_training_grasps(features, targets)
+        else:
+            outputs, grasp_targets = self._roi_training_grasps(features, sampled, image_list.image_sizes, targets)
+        return weighted_losses(self.options, rpn_losses | box_losses, self._grasp_losses(outputs, grasp_targets))
+
+    def _box_losses(self, features: dict[str, torch.Tensor], proposals: list[torch.Tensor],
+                    image_sizes: list[tuple[int, int]], targets: list[dict[str, torch.Tensor]],
+                    ) -> tuple[tuple[list[torch.Tensor], ...], dict[str, torch.Tensor]]:
+        """The RCNN box branch in train mode: the training half of torchvision's ``RoIHeads.forward``.
+
+        Returns
+        -------
+        sampled : (proposals, labels, matched)
+            Per image, the sampled RoIs (n_b, 4), their labels (n_b,) (0 = background) and the index of
+            the object each is matched to (n_b,).
+        losses : dict of scalar tensors
+            "loss_classifier" and "loss_box_reg".
+        """
         heads = self.roi_heads
         proposals, matched, labels, box_targets = heads.select_training_samples(proposals, targets)
-        box_features = heads.box_head(heads.box_roi_pool(features, proposals, image_list.image_sizes))
+        box_features = heads.box_head(heads.box_roi_pool(features, proposals, image_sizes))
         class_logits, box_regression = heads.box_predictor(box_features)
         class_loss, box_loss = fastrcnn_loss(class_logits, box_regression, labels, box_targets)
+        return (proposals, labels, matched), {"loss_classifier": class_loss, "loss_box_reg": box_loss}
 
-        # the grasp branch: foreground RoIs (GT boxes and proposals with IoU >= 0.5), capped per image
+    def _roi_training_grasps(self, features: dict[str, torch.Tensor], sampled: tuple[list[torch.Tensor], ...],
+                             image_sizes: list[tuple[int, int]], targets: list[dict[str, torch.Tensor]],
+                             ) -> tuple[GraspOutputs, GraspTargets]:
+        """The "roi" branch in train mode: foreground RoIs (ground-truth boxes and proposals with IoU >= 0.5),
+        capped per image, each with the grasps of the object it is matched to."""
+        options = self.options
         grasps, valid, tasks, first_object = padded_object_grasps(targets)
-        grasp_rois, grasp_owner = [], []
-        for image_index, (image_proposals, image_labels, image_matched) in enumerate(
-                zip(proposals, labels, matched, strict=True)):
-            foreground = torch.nonzero(image_labels > 0).flatten()
-            if len(foreground) > options.grasp_rois_per_image:
-                keep = torch.randperm(len(foreground), device=foreground.device)[: options.grasp_rois_per_image]
-                foreground = foreground[keep]
-            grasp_rois.append(image_proposals[foreground].detach())
-            grasp_owner.append(image_matched[foreground] + first_object[image_index])
-        owners = torch.cat(grasp_owner)
-        regression, stability, task_log_probs, anchors = self.grasp_outputs(
-            features, grasp_rois, image_list.image_sizes)
-        roi_boxes, owner_grasps = torch.cat(grasp_rois).float(), grasps[owners].float()
+        rois, owners = grasp_training_rois(*sampled, first_object, options.grasp_rois_per_image)
+        outputs = self.grasp_outputs(features, rois, image_sizes)
+        roi_boxes, owner_grasps = torch.cat(rois).float(), grasps[owners].float()
         positive, regression_targets, task_targets = match(
-            anchors, roi_boxes, owner_grasps, valid[owners], tasks[owners], len(TASKS),
+            outputs.anchors, roi_boxes, owner_grasps, valid[owners], tasks[owners], len(TASKS),
             positive_radius=options.grasp_positive_radius)
         ignored = None if options.grasp_ignore_radius is None else near_ground_truth(
-            anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_ignore_radius)
-        grasp = grasp_losses(stability, regression, task_log_probs, positive, regression_targets, task_targets,
-                             options.negative_ratio, ignored)
-        hits, rois = top1_task_hits(stability, task_log_probs, positive, task_targets)
+            outputs.anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_ignore_radius)
+        return outputs, GraspTargets(positive, regression_targets, task_targets, ignored)
+
+    def _image_training_grasps(self, features: dict[str, torch.Tensor], targets: list[dict[str, torch.Tensor]],
+                               ) -> tuple[GraspOutputs, GraspTargets]:
+        """The "image" branch in train mode: every grasp of an image is a target of its cell's anchors."""
+        outputs = self.image_grasp_outputs(features)
+        return outputs, GraspTargets(*image_grasp_targets(targets, outputs.anchors, self.grasp_stride))
+
+    def _grasp_losses(self, outputs: GraspOutputs, targets: GraspTargets) -> dict[str, torch.Tensor]:
+        """``togcrf.losses.grasp_losses`` of a branch; sets ``last_training_stats``."""
+        grasp = grasp_losses(outputs.stability, outputs.regression, outputs.task_log_probs, targets.positive,
+                             targets.regression, targets.tasks, self.options.negative_ratio, targets.ignored)
+        hits, rois = top1_task_hits(outputs.stability, outputs.task_log_probs, targets.positive, targets.tasks)
         self.last_training_stats = {"acc_t_hits": hits, "acc_t_rois": rois,
-                                    "positive_candidates": int(positive.sum())}
-        return {
-            "rpn_objectness": options.weight_rpn * rpn_losses["loss_objectness"],
-            "rpn_box": options.weight_rpn * rpn_losses["loss_rpn_box_reg"],
-            "rcnn_class": options.weight_rcnn * class_loss,
-            "rcnn_box": options.weight_rcnn * box_loss,
-            "grasp_stability": options.weight_stability * grasp["grasp_stability"],
-            "grasp_regression": options.weight_regression * grasp["grasp_regression"],
-            "grasp_task": options.weight_task * grasp["grasp_task"],
-        }
+                                    "positive_candidates": int(targets.positive.sum())}
+        return grasp
 
-    def _detect_grasps(self, features: dict[str, torch.Tensor], detections: list[dict[str, torch.Tensor]],
-                       image_sizes: list[tuple[int, int]]) -> list[dict[str, torch.Tensor]]:
-        boxes = [detection["boxes"] for detection in detections]
-        regression, stability, task_log_probs, anchors = self.grasp_outputs(features, boxes, image_sizes)
-        rectangles = decode(regression.float(), anchors)
-        stable = stability.float().softmax(dim=-1)[..., 1]
-        task_probs = task_log_probs.exp()
-        results, start = [], 0
-        for detection in detections:
-            count = len(detection["boxes"])
-            end = start + count
-            results.append({
-                "boxes": detection["boxes"].float(),
-                "labels": detection["labels"],
-                "scores": detection["scores"].float(),
-                "grasps": rectangles[start:end],
-                "grasp_stability": stable[start:end],
-                "grasp_task_probs": task_probs[start:end],
-            })
-            start = end
-        return results
+    def _roi_detections(self, features: dict[str, torch.Tensor], detections: list[dict[str, torch.Tensor]],
+                        image_sizes: list[tuple[int, int]]) -> list[dict[str, torch.Tensor]]:
+        """The "roi" branch in eval mode: the 196 candidates of each detected box."""
+        counts = [len(detection["boxes"]) for detection in detections]
+        outputs = self.grasp_outputs(features, [detection["boxes"] for detection in detections], image_sizes)
+        rectangles = decode(outputs.regression.float(), outputs.anchors)
+        stable = outputs.stability.float().softmax(dim=-1)[..., 1]
+        task_probs = outputs.task_log_probs.exp()
+        return [detection_output(detection, *per_image) for detection, *per_image in zip(
+            detections, rectangles.split(counts), stable.split(counts), task_probs.split(counts), strict=True)]
+
+    def _image_detections(self, features: dict[str, torch.Tensor],
+                          detections: list[dict[str, torch.Tensor]]) -> list[dict[str, torch.Tensor]]:
+        """The "image" branch in eval mode: the candidates of the whole image, given to the boxes that
+        contain their centres (``togcrf.fcgn.box_candidates``)."""
+        outputs = self.image_grasp_outputs(features)
+        rectangles = decode(outputs.regression.float(), outputs.anchors[None])
+        stable = outputs.stability.float().softmax(dim=-1)[..., 1]
+        task_probs = outputs.task_log_probs.exp()
+        keep = self.options.fcgn_candidates_per_box
+        return [detection_output(detection, *box_candidates(
+            rectangles[index], stable[index], task_probs[index], detection["boxes"].float(), keep))
+            for index, detection in enumerate(detections)]
 
 
-def build_model(name: str, backbone: str = "resnet18", **options) -> nn.Module:
-    """A model of Table II by name.
+#: The name older code and the docs give the detector.
+TogDetector = GraspDetector
+
+
+def build_model(name: str, backbone: str = "resnet18", **options) -> GraspDetector:
+    """A model of Table II by name (``MODELS``).
 
     Parameters
     ----------
@@ -505,7 +819,7 @@ def build_model(name: str, backbone: str = "resnet18", **options) -> nn.Module:
     backbone : str
         One of ``BACKBONES``.
     **options
-        :class:`ModelOptions` fields (for "fcgn-task": that model's options).
+        :class:`ModelOptions` fields (for "fcgn-task": :class:`FcgnOptions` fields).
 
     Raises
     ------
@@ -513,20 +827,12 @@ def build_model(name: str, backbone: str = "resnet18", **options) -> nn.Module:
         Unknown name or backbone.
     TypeError
         Unknown option.
-    NotImplementedError
-        "fcgn-task" before ``togcrf.fcgn`` exists.
     """
-    if name == "fcgn-task":
-        try:
-            from togcrf.fcgn import FcgnTask  # noqa: PLC0415 - the evaluation engineer's module, optional
-        except ModuleNotFoundError as error:
-            if error.name != "togcrf.fcgn":
-                raise
-            raise NotImplementedError("model 'fcgn-task' needs togcrf/fcgn.py, which is not written yet") from error
-        return FcgnTask(backbone=backbone, **options)
-    if name not in CRF_TERMS:
+    if name not in MODELS:
         raise ValueError(f"unknown model {name!r}; expected one of {MODEL_NAMES}")
-    return TogDetector(backbone, CRF_TERMS[name], ModelOptions.from_dict(options))
+    spec = MODELS[name]
+    return GraspDetector(backbone, spec.crf_terms, BRANCH_OPTIONS[spec.grasp_branch].from_dict(options),
+                         spec.grasp_branch)
 
 
 def model_options_dict(options: ModelOptions) -> dict:

@@ -27,7 +27,9 @@ import numpy as np
 import torch
 import typer
 
-from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_INDEX, TASKS
+from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_COLOURS, TASK_INDEX, TASKS
+from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.evaluate import run_model, write_json
 from togcrf.metrics import Detections, rectangle_corners
 
@@ -86,7 +88,6 @@ def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None =
         return np.nan_to_num(depth.astype(np.float32), nan=0.0), None
     if data_dir is None:
         raise ValueError(f"{source!r} is neither a .png nor a .npy file; to name a sample id, give --data")
-    from osgd.contract.samples import iter_samples  # noqa: PLC0415
 
     for sample in iter_samples(data_dir, pipeline=pipeline):
         if sample.sample_id == source:
@@ -201,15 +202,12 @@ def best_grasp_for_task(detections: Detections, task: str, category: str | None 
     }
 
 
-#: One distinct colour per task, in ``taxonomy.TASKS`` order (hex RGB; our choice, after Kelly's
-#: colours of maximum contrast, so that neighbouring tasks never share a hue).
-TASK_COLOURS = ("#a0a0a0", "#e6194b", "#3cb44b", "#ffe119", "#4363d8", "#f58231", "#911eb4", "#42d4f4",
-                "#f032e6", "#bfef45", "#9a6324", "#ffffff")
-
-
 def task_colours() -> np.ndarray:
-    """One RGB colour (floats in [0, 1]) per task: (12, 3)."""
-    return np.array([[int(code[index:index + 2], 16) / 255 for index in (1, 3, 5)] for code in TASK_COLOURS])
+    """One RGB colour (floats in [0, 1]) per task, in ``taxonomy.TASKS`` order: (12, 3).
+
+    The rows of ``taxonomy.TASK_COLOURS``, the palette every picture colours tasks with.
+    """
+    return np.array([TASK_COLOURS[task] for task in TASKS], dtype=np.float64)
 
 
 def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasps_per_object: int = DRAWN_GRASPS,
@@ -298,13 +296,15 @@ def predict_command(
     device: Annotated[str, typer.Option(help="torch device.")] = "cpu",
 ) -> None:
     """Detect objects and task-oriented grasps on one depth image; JSON out, optional picture."""
-    from togcrf.train import load_checkpoint  # noqa: PLC0415
 
     try:
         depth, sample = load_depth(source, data, pipeline)
         if not Path(checkpoint).is_file():
             raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
         model, config = load_checkpoint(checkpoint, device=device)
+        if sample is not None:
+            check_vocabulary(config["vocabulary"], samples_vocabulary(sample_shards(data, pipeline)),
+                             str(checkpoint), f"{data}/samples")
         detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device), min_score)
         chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
     except (FileNotFoundError, ValueError, KeyError) as error:

@@ -40,13 +40,15 @@ from typing import Annotated, Any
 import torch
 import typer
 
+from togcrf.checkpoint import load_checkpoint, read_checkpoint
 from togcrf.evaluate import EVAL_FILE, command_line, evaluate_checkpoint, format_table, row_name, write_json
 from togcrf.metrics import PROTOCOLS
+from togcrf.model import MODEL_NAMES
 
 log = logging.getLogger(__name__)
 
-#: The models of Table II, in its order (``togcrf.model.MODEL_NAMES``).
-TABLE_MODELS = ("fcgn-task", "tog", "tog-crfs-omega", "tog-crfs-mu", "tog-crfs")
+#: The models of Table II, in its order (the registry ``togcrf.model.MODELS``).
+TABLE_MODELS = MODEL_NAMES
 
 
 @dataclass(frozen=True)
@@ -161,7 +163,7 @@ def _trained_epochs(checkpoint: Path) -> int:
     """Epochs a checkpoint holds (it stores the index of its last, from 0)."""
     if not checkpoint.is_file():
         return 0
-    last = torch.load(checkpoint, map_location="cpu", weights_only=False).get("epoch")
+    last = read_checkpoint(checkpoint).get("epoch")
     return 0 if last is None else int(last) + 1
 
 
@@ -188,7 +190,7 @@ def reproduce(
         ``rows``: list of (name, Table II row); ``table``: the text.
     """
     from togcrf.figures import crf_matrices, draw_crf_figures  # noqa: PLC0415
-    from togcrf.train import load_checkpoint, resolve_device, train  # noqa: PLC0415
+    from togcrf.train import resolve_device, train  # noqa: PLC0415
 
     eval_device = str(resolve_device(device))
     rows: dict[str, list] = {protocol: [] for protocol in PROTOCOLS}
@@ -235,7 +237,6 @@ def eval_file(protocol: str) -> str:
 def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | None, path: Path) -> None:
     from osgd.contract.samples import iter_samples  # noqa: PLC0415
     from togcrf.predict import draw_prediction, keep_confident, predict_depth  # noqa: PLC0415
-    from togcrf.train import load_checkpoint  # noqa: PLC0415
 
     model, config = load_checkpoint(checkpoint)
     sample = next(iter_samples(data_dir, pipeline=pipeline, split="test"), None)

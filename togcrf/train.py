@@ -47,7 +47,9 @@ import typer
 from torch.utils.data import DataLoader
 
 from togcrf import distributed
+from togcrf.checkpoint import check_vocabulary, current_vocabulary, read_checkpoint, save_checkpoint
 from togcrf.data import SamplesDataset, ShardGroupedSampler, collate
+from togcrf.losses import LOSS_KEYS
 from togcrf.model import BACKBONES, MODEL_NAMES, build_model
 
 logger = logging.getLogger(__name__)
@@ -61,9 +63,8 @@ LR_SCHEDULES = ("step", "cosine")
 #: Held-out metrics per epoch in metrics.csv (``val_`` + the Table II column).
 VALIDATION_COLUMNS = ("val_mAP", "val_mAP-G", "val_Acc-T top1")
 
-#: Loss terms in metrics.csv, in order (the model's loss keys).
-LOSS_TERMS = ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
-              "grasp_task")
+#: Loss terms in metrics.csv, in order (the model's loss keys, ``togcrf.losses.LOSS_KEYS``).
+LOSS_TERMS = LOSS_KEYS
 
 
 @dataclass
@@ -247,12 +248,6 @@ def _to_device(images: list[torch.Tensor], targets: list[dict[str, torch.Tensor]
             [{key: value.to(device, non_blocking=True) for key, value in target.items()} for target in targets])
 
 
-def _atomic_save(value: Any, path: Path) -> None:
-    temporary = path.with_suffix(path.suffix + ".tmp")
-    torch.save(value, temporary)
-    os.replace(temporary, path)
-
-
 def _read_metrics(path: Path) -> list[dict[str, str]]:
     if not path.exists():
         return []
@@ -299,6 +294,7 @@ class _Run:
     validation: list[int]
     context: distributed.Context = field(default_factory=distributed.Context)
     forward: torch.nn.Module | None = None  # the model, or DistributedDataParallel around it
+    scaler: torch.amp.GradScaler | None = None  # loss scaling of float16 mixed precision (disabled otherwise)
     trained_seconds: float = 0.0
     global_step: int = 0
     out_of_time: bool = False
@@ -317,6 +313,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
                              image_size=config.image_size, augment=config.augment, seed=config.seed,
                              max_samples=config.max_samples, scale_jitter=config.scale_jitter)
+    check_vocabulary(current_vocabulary(), dataset.vocabulary, f"the model of this code (--model {config.model})",
+                     f"{config.data}/samples")
     if config.val_samples and config.val_samples >= len(dataset):
         raise ValueError(f"--val-samples {config.val_samples}: the training split has only {len(dataset)}")
     kept = len(dataset) - config.val_samples
@@ -338,8 +336,10 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     cosine_steps = config.epochs * len(loader) if config.lr_schedule == "cosine" else None
     scheduler = torch.optim.lr_scheduler.LambdaLR(
         optimizer, WarmupSchedule(config.warmup_steps, len(loader), config.lr_decay_epochs, cosine_steps))
+    use_amp, amp_dtype = _mixed_precision(config, device)
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
     run = _Run(config, device, model, optimizer, scheduler, loader, dataset, sampler, validation_samples,
-               context, distributed.wrap(model, context, device))
+               context, distributed.wrap(model, context, device), scaler)
     return run, stored_config, data_identity
 
 
@@ -347,7 +347,7 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
     """Copy the model weights of a checkpoint into ``model`` (``--init``)."""
     if not path.is_file():
         raise FileNotFoundError(f"--init {path}: no such checkpoint")
-    weights = torch.load(path, map_location=device, weights_only=False)["model"]
+    weights = read_checkpoint(path, device)["model"]
     try:
         model.load_state_dict(weights)
     except RuntimeError as error:
@@ -359,7 +359,7 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
 
 def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
     """Load a checkpoint into the run; the first epoch still to train."""
-    checkpoint = torch.load(checkpoint_path, map_location=run.device, weights_only=False)
+    checkpoint = read_checkpoint(checkpoint_path, run.device)
     for key in _RESUME_MUST_MATCH:
         if checkpoint["config"].get(key) != stored_config.get(key):
             raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {checkpoint['config'].get(key)!r}, "
@@ -367,6 +367,8 @@ def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> 
     run.model.load_state_dict(checkpoint["model"])
     run.optimizer.load_state_dict(checkpoint["optimizer"])
     run.scheduler.load_state_dict(checkpoint["scheduler"])
+    if checkpoint.get("scaler"):  # absent from checkpoints written before it was saved (2026-11)
+        run.scaler.load_state_dict(checkpoint["scaler"])
     logger.info("resuming %s after epoch %d", checkpoint_path, int(checkpoint["epoch"]))
     run.trained_seconds = float(checkpoint.get("trained_seconds", 0.0))
     if checkpoint.get("stopped_by_budget"):
@@ -374,13 +376,18 @@ def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> 
     return int(checkpoint["epoch"]) + 1
 
 
+def _mixed_precision(config: TrainConfig, device: torch.device) -> tuple[bool, torch.dtype]:
+    """Whether the run uses mixed precision (CUDA only), and its type: bfloat16 where supported, else float16."""
+    use_amp = config.amp and device.type == "cuda"
+    return use_amp, torch.bfloat16 if use_amp and torch.cuda.is_bf16_supported() else torch.float16
+
+
 def train_one_epoch(run: _Run, epoch: int, progress: Callable[[Progress], None] | None = None,
                     writer: Any = None) -> dict[str, Any]:
     """One pass over the training data; the epoch's metrics row (losses averaged over its steps)."""
     config, model, optimizer = run.config, run.model, run.optimizer
-    use_amp = config.amp and run.device.type == "cuda"
-    amp_dtype = torch.bfloat16 if use_amp and torch.cuda.is_bf16_supported() else torch.float16
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
+    use_amp, amp_dtype = _mixed_precision(config, run.device)
+    scaler = run.scaler
     model.train()
     run.dataset.set_epoch(epoch)
     run.sampler.set_epoch(epoch)
@@ -506,10 +513,11 @@ def train(config: TrainConfig, progress: Callable[[Progress], None] | None = Non
             last_row.update(validate(run))
             rows.append(last_row)
             _write_metrics(metrics_path, rows)
-            _atomic_save({"model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
-                          "scheduler": run.scheduler.state_dict(), "epoch": epoch, "config": stored_config,
-                          "data": data_identity, "stopped_by_budget": run.out_of_time,
-                          "trained_seconds": run.trained_seconds}, checkpoint_path)
+            save_checkpoint(checkpoint_path, {
+                "model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
+                "scheduler": run.scheduler.state_dict(), "scaler": run.scaler.state_dict(), "epoch": epoch,
+                "config": stored_config, "data": data_identity, "stopped_by_budget": run.out_of_time,
+                "trained_seconds": run.trained_seconds}, run.dataset.vocabulary)
         distributed.barrier(run.context)
         if writer is not None:
             for key in ("loss", *LOSS_TERMS, "train_acc_t_top1", *VALIDATION_COLUMNS):
@@ -536,42 +544,6 @@ def _model_options(model: torch.nn.Module, config: TrainConfig) -> dict[str, Any
     if isinstance(options, ModelOptions):
         return model_options_dict(options)
     return dict(config.model_options)
-
-
-def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[torch.nn.Module, dict[str, Any]]:
-    """The model of a checkpoint (eval mode, on ``device``) and its training config.
-
-    Parameters
-    ----------
-    path : path
-        ``RUN_DIR/checkpoint.pt`` (or a run dir).
-    device : str
-
-    Returns
-    -------
-    model, config : torch.nn.Module, dict
-        ``config`` is the stored training config plus ``"epoch"`` and ``"data"``.
-
-    Raises
-    ------
-    FileNotFoundError, ValueError
-        Missing file, or not a togcrf checkpoint.
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "checkpoint.pt"
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no checkpoint")
-    checkpoint = torch.load(path, map_location=device, weights_only=False)
-    if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
-        raise ValueError(f"{path}: not a togcrf checkpoint (needs 'model' and 'config')")
-    config = dict(checkpoint["config"])
-    model = build_model(config["model"], config["backbone"], **config.get("model_options", {}))
-    model.load_state_dict(checkpoint["model"])
-    model.to(device).eval()
-    config["epoch"] = checkpoint.get("epoch")
-    config["data"] = checkpoint.get("data")
-    return model, config
 
 
 def _duration(seconds: float) -> str:
@@ -676,40 +648,55 @@ def _parse_options(items: list[str] | None) -> dict[str, Any]:
     return options
 
 
+#: The defaults of every option: the command's options take theirs from here.
+_DEFAULTS = TrainConfig(data="", out="")
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``train`` command to the togcrf CLI."""
     def train_command(
         data: Annotated[Path, typer.Option("--data", help="Data dir with samples shards.")],
         out: Annotated[Path, typer.Option("--out", help="Run dir (checkpoint.pt, metrics.csv, config.json).")],
-        pipeline: Annotated[str | None, typer.Option(help="Use the shards of this pipeline's manifest.")] = None,
-        model: Annotated[str, typer.Option(help=f"One of {', '.join(MODEL_NAMES)}.")] = "tog-crfs",
-        backbone: Annotated[str, typer.Option(help=f"One of {', '.join(BACKBONES)}.")] = "resnet101",
-        epochs: Annotated[int, typer.Option(help="Epochs (paper: 10).")] = 10,
-        lr: Annotated[float, typer.Option(help="Learning rate (paper: 0.001 with SGD).")] = 0.001,
-        optimizer: Annotated[str, typer.Option(help=f"One of {', '.join(OPTIMIZERS)} (paper: sgd).")] = "sgd",
+        pipeline: Annotated[str | None, typer.Option(help="Use the shards of this pipeline's manifest.")] = (
+            _DEFAULTS.pipeline),
+        model: Annotated[str, typer.Option(help=f"One of {', '.join(MODEL_NAMES)}.")] = _DEFAULTS.model,
+        backbone: Annotated[str, typer.Option(help=f"One of {', '.join(BACKBONES)}.")] = _DEFAULTS.backbone,
+        epochs: Annotated[int, typer.Option(help="Epochs (paper: 10).")] = _DEFAULTS.epochs,
+        lr: Annotated[float, typer.Option(help="Learning rate (paper: 0.001 with SGD).")] = _DEFAULTS.lr,
+        optimizer: Annotated[str, typer.Option(help=f"One of {', '.join(OPTIMIZERS)} (paper: sgd).")] = (
+            _DEFAULTS.optimizer),
         lr_schedule: Annotated[str, typer.Option(
-            help="step: x0.1 from each --lr-decay-epoch; cosine: to 0 over the run.")] = "step",
+            help="step: x0.1 from each --lr-decay-epoch; cosine: to 0 over the run.")] = _DEFAULTS.lr_schedule,
         lr_decay_epoch: Annotated[list[int] | None, typer.Option(help="With step: decay from this epoch.")] = None,
-        momentum: Annotated[float, typer.Option(help="SGD momentum (paper: 0.9).")] = 0.9,
-        weight_decay: Annotated[float, typer.Option(help="Weight decay.")] = 1e-4,
-        batch_size: Annotated[int, typer.Option(help="Images per step.")] = 2,
-        image_size: Annotated[int | None, typer.Option(help="Longer image side fed to the network.")] = None,
-        augment: Annotated[bool, typer.Option(help="Flips, 90-degree turns and scale jitter.")] = True,
-        scale_jitter: Annotated[float, typer.Option(help="Augmentation scales in [1 - this, 1].")] = 0.1,
-        warmup_steps: Annotated[int, typer.Option(help="Linear learning-rate warm-up steps.")] = 100,
-        clip_grad_norm: Annotated[float, typer.Option(help="Gradient-norm clipping (0: off).")] = 10.0,
+        momentum: Annotated[float, typer.Option(help="SGD momentum (paper: 0.9).")] = _DEFAULTS.momentum,
+        weight_decay: Annotated[float, typer.Option(help="Weight decay.")] = _DEFAULTS.weight_decay,
+        batch_size: Annotated[int, typer.Option(help="Images per step.")] = _DEFAULTS.batch_size,
+        image_size: Annotated[int | None, typer.Option(help="Longer image side fed to the network.")] = (
+            _DEFAULTS.image_size),
+        augment: Annotated[bool, typer.Option(help="Flips, 90-degree turns and scale jitter.")] = _DEFAULTS.augment,
+        scale_jitter: Annotated[float, typer.Option(help="Augmentation scales in [1 - this, 1].")] = (
+            _DEFAULTS.scale_jitter),
+        warmup_steps: Annotated[int, typer.Option(help="Linear learning-rate warm-up steps.")] = _DEFAULTS.warmup_steps,
+        clip_grad_norm: Annotated[float, typer.Option(help="Gradient-norm clipping (0: off).")] = (
+            _DEFAULTS.clip_grad_norm),
         val_samples: Annotated[int, typer.Option(
-            help="Training samples held out for validation metrics after every epoch (0: none).")] = 0,
+            help="Training samples held out for validation metrics after every epoch (0: none).")] = (
+            _DEFAULTS.val_samples),
         time_budget: Annotated[float | None, typer.Option(
-            help="Minutes of training after which the run stops (its checkpoint then holds the part epoch).")] = None,
-        resume: Annotated[bool, typer.Option(help="Continue RUN_DIR/checkpoint.pt.")] = False,
+            help="Minutes of training after which the run stops (its checkpoint then holds the part epoch).")] = (
+            _DEFAULTS.time_budget_minutes),
+        resume: Annotated[bool, typer.Option(help="Continue RUN_DIR/checkpoint.pt.")] = _DEFAULTS.resume,
         init: Annotated[Path | None, typer.Option(
             help="Start from this checkpoint's weights (fine-tuning; optimiser and schedule start afresh).")] = None,
-        device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
-        amp: Annotated[bool, typer.Option(help="Mixed precision on CUDA.")] = True,
-        seed: Annotated[int, typer.Option(help="Seed of initialisation, data order and augmentation.")] = 0,
-        max_samples: Annotated[int | None, typer.Option(help="Use only the first N samples (quick runs).")] = None,
-        workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = 0,
+        device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = _DEFAULTS.device,
+        amp: Annotated[bool, typer.Option(help="Mixed precision on CUDA.")] = _DEFAULTS.amp,
+        seed: Annotated[int, typer.Option(help="Seed of initialisation, data order and augmentation.")] = (
+            _DEFAULTS.seed),
+        max_samples: Annotated[int | None, typer.Option(help="Use only the first N samples (quick runs).")] = (
+            _DEFAULTS.max_samples),
+        workers: Annotated[int, typer.Option(help="DataLoader worker processes.")] = _DEFAULTS.workers,
+        split: Annotated[str, typer.Option(help="Split trained on (its last --val-samples are held out).")] = (
+            _DEFAULTS.split),
         option: Annotated[list[str] | None, typer.Option(help="Model option NAME=JSON_VALUE (ModelOptions).")] = None,
     ) -> None:
         """Train TOG / TOG-CRFs (or FCGN+Task) on samples shards.
@@ -727,7 +714,7 @@ def register(app: typer.Typer) -> None:
             device=device, amp=amp, seed=seed, max_samples=max_samples, workers=workers,
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
-            time_budget_minutes=time_budget, init=None if init is None else str(init))
+            time_budget_minutes=time_budget, init=None if init is None else str(init), split=split)
         report = ProgressReport(out, epochs, time_budget) if distributed.from_environment().main else None
         try:
             result = train(config, report)

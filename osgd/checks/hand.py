@@ -48,9 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from osgd.gripper import Gripper
-from osgd.quiet import import_pybullet
-
-pybullet = import_pybullet()
+from osgd.physics import pybullet_module
 
 #: Link indices of the fingers in the hand multibody (the palm is -1, the base).
 FINGER_A = 0
@@ -80,11 +78,13 @@ class SimulatedHand:
 
     def opening(self) -> float:
         """Current pad-to-pad distance, m."""
+        pybullet = pybullet_module()
         states = pybullet.getJointStates(self.body_id, [FINGER_A, FINGER_B], physicsClientId=self.client)
         return float(self.gripper.max_opening - states[0][0] - states[1][0])
 
     def finger_speed(self) -> float:
         """Largest absolute finger joint speed, m/s."""
+        pybullet = pybullet_module()
         states = pybullet.getJointStates(self.body_id, [FINGER_A, FINGER_B], physicsClientId=self.client)
         return float(max(abs(states[0][1]), abs(states[1][1])))
 
@@ -100,6 +100,7 @@ class SimulatedHand:
         opening : float
             Pad-to-pad distance, m; clipped to ``[0, max_opening]``.
         """
+        pybullet = pybullet_module()
         travel = (self.gripper.max_opening - float(np.clip(opening, 0.0, self.gripper.max_opening))) / 2
         pybullet.resetBasePositionAndOrientation(
             self.body_id, list(map(float, position)), list(map(float, quaternion)), physicsClientId=self.client
@@ -111,6 +112,7 @@ class SimulatedHand:
 
     def move_to(self, position: np.ndarray, quaternion: np.ndarray) -> None:
         """Set the target pose the moving constraint pulls the hand to."""
+        pybullet = pybullet_module()
         pybullet.changeConstraint(
             self.constraint_id,
             jointChildPivot=list(map(float, position)),
@@ -126,6 +128,7 @@ class SimulatedHand:
         Position control towards the closed position (rather than a velocity
         motor) stops the fingers at opening 0 when they meet nothing.
         """
+        pybullet = pybullet_module()
         closed = self.gripper.max_opening / 2
         for finger in (FINGER_A, FINGER_B):
             pybullet.setJointMotorControl2(
@@ -135,6 +138,7 @@ class SimulatedHand:
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World pose of the gripper frame: position (3,), quaternion (4,) (x, y, z, w)."""
+        pybullet = pybullet_module()
         position, quaternion = pybullet.getBasePositionAndOrientation(self.body_id, physicsClientId=self.client)
         return np.asarray(position, dtype=np.float64), np.asarray(quaternion, dtype=np.float64)
 
@@ -195,6 +199,7 @@ def crowned_finger_vertices(
 
 
 def _finger_shape(client: int, gripper: Gripper, half: np.ndarray, inner_sign: float, pad_contact: str) -> int:
+    pybullet = pybullet_module()
     if pad_contact == "rigid":
         return pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=client)
     vertices = crowned_finger_vertices(gripper, half, inner_sign, CONVEX_HULL_MARGIN)
@@ -202,6 +207,7 @@ def _finger_shape(client: int, gripper: Gripper, half: np.ndarray, inner_sign: f
 
 
 def _pad_dynamics(client: int, body: int, finger: int, gripper: Gripper, friction: float, pad_contact: str) -> None:
+    pybullet = pybullet_module()
     if pad_contact == "rigid":
         pybullet.changeDynamics(body, finger, lateralFriction=friction, physicsClientId=client)
         return
@@ -239,6 +245,7 @@ def create_hand(
     pad_contact : {"soft", "rigid"}
         The pad model (module docstring).
     """
+    pybullet = pybullet_module()
     if pad_contact not in PAD_CONTACTS:
         raise ValueError(f"pad_contact {pad_contact!r}: expected one of {', '.join(PAD_CONTACTS)}")
     friction = gripper.pad_friction if finger_friction is None else finger_friction

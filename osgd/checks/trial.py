@@ -55,10 +55,7 @@ from scipy.spatial.transform import Rotation
 from osgd.checks.hand import FINGER_A, FINGER_B, SimulatedHand, create_hand
 from osgd.checks.params import ChecksStageParams
 from osgd.gripper import Gripper
-from osgd.physics import ObjectBody, create_object_body
-from osgd.quiet import import_pybullet
-
-pybullet = import_pybullet()
+from osgd.physics import ObjectBody, create_object_body, pybullet_module
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +112,11 @@ class TrialResult:
 
 # -- the per-process physics client -------------------------------------------
 
-_CLIENT: int | None = None
+class _ProcessClient:
+    """The one physics client of this process for grasp trials (a per-worker cache, not shared state)."""
+
+    client: int | None = None
+    exit_handler_registered: bool = False
 
 
 def trial_client() -> int:
@@ -124,19 +125,20 @@ def trial_client() -> int:
     One DIRECT client per worker process, reused by every trial the process
     runs (connecting costs more than a whole trial); disconnected at exit.
     """
-    global _CLIENT
-    if _CLIENT is None or not pybullet.isConnected(_CLIENT):
-        if _CLIENT is None:  # one exit handler per process, however often it reconnects
+    pybullet = pybullet_module()
+    if _ProcessClient.client is None or not pybullet.isConnected(_ProcessClient.client):
+        if not _ProcessClient.exit_handler_registered:  # one exit handler per process, however often it reconnects
             atexit.register(_disconnect)
-        _CLIENT = pybullet.connect(pybullet.DIRECT)
-    return _CLIENT
+            _ProcessClient.exit_handler_registered = True
+        _ProcessClient.client = pybullet.connect(pybullet.DIRECT)
+    return _ProcessClient.client
 
 
 def _disconnect() -> None:
-    global _CLIENT
-    if _CLIENT is not None and pybullet.isConnected(_CLIENT):
-        pybullet.disconnect(_CLIENT)
-    _CLIENT = None
+    pybullet = pybullet_module()
+    if _ProcessClient.client is not None and pybullet.isConnected(_ProcessClient.client):
+        pybullet.disconnect(_ProcessClient.client)
+    _ProcessClient.client = None
 
 
 # -- geometry helpers ----------------------------------------------------------
@@ -166,11 +168,13 @@ class _Trial:
         self.reference: tuple[np.ndarray, np.ndarray] | None = None
 
     def step(self) -> None:
+        pybullet = pybullet_module()
         pybullet.stepSimulation(physicsClientId=self.client)
         self.steps += 1
 
     def touching(self, finger: int) -> bool:
         """Whether a finger is within ``contact_distance`` of the object."""
+        pybullet = pybullet_module()
         return bool(pybullet.getClosestPoints(
             self.hand.body_id, self.body.body_id, self.params.contact_distance,
             linkIndexA=finger, physicsClientId=self.client,
@@ -187,6 +191,7 @@ class _Trial:
 
     def object_in_hand(self) -> tuple[np.ndarray, np.ndarray]:
         """Pose of the object's centre-of-mass frame in the gripper frame."""
+        pybullet = pybullet_module()
         hand_position, hand_quaternion = self.hand.pose()
         com_position, com_quaternion = pybullet.getBasePositionAndOrientation(
             self.body.body_id, physicsClientId=self.client)
@@ -231,6 +236,7 @@ def _steps(duration: float, timestep: float) -> int:
 
 def _approach_collides(trial: _Trial, position: np.ndarray, quaternion: np.ndarray, opening: float) -> bool:
     """Sweep the open hand from the pre-grasp pose to the grasp pose."""
+    pybullet = pybullet_module()
     params = trial.params
     approach = Rotation.from_quat(quaternion).apply([0.0, 0.0, 1.0])
     count = int(np.ceil(params.approach_distance / params.approach_spacing)) + 1
@@ -268,6 +274,7 @@ def _shake_targets(
 
 
 def _setup_world(client: int, params: ChecksStageParams) -> None:
+    pybullet = pybullet_module()
     pybullet.resetSimulation(physicsClientId=client)
     pybullet.setPhysicsEngineParameter(
         fixedTimeStep=params.timestep, numSolverIterations=params.solver_iterations,
@@ -288,6 +295,7 @@ def _place_object(
     models table's, tuned for piles on a table) is set to zero, so that the
     torsional friction in the hand is the pads' alone.
     """
+    pybullet = pybullet_module()
     # Object pose in the world: (hand in world) * (grasp in object)^-1.
     object_position, object_quaternion = _compose(
         np.zeros(3), GRASP_QUATERNION_IN_WORLD,
@@ -314,6 +322,7 @@ def _close(trial: _Trial, grip_force: float) -> bool:
 
 def _lift(trial: _Trial) -> bool:
     """Gravity on, lift the hand and hold it still; whether the object is held."""
+    pybullet = pybullet_module()
     params = trial.params
     pybullet.setGravity(0.0, 0.0, -params.gravity, physicsClientId=trial.client)
     lift_steps = _steps(params.lift_duration, params.timestep)

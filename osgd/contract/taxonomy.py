@@ -148,3 +148,23 @@ def vocabulary_difference(recorded: Mapping[str, Sequence[str]], expected: Mappi
         if first != second:
             return f"{field} {first} against {second}"
     return None
+
+
+#: One colour per task, (r, g, b) floats in [0, 1]: the one palette of every picture that colours by
+#: task. They are matplotlib's ``tab20`` entries, written out so that the contract imports no
+#: matplotlib: task ``i`` (Table I order) takes entry ``(2 * i) % 20 + (i >= 10)``, the dark shade of
+#: the first ten pairs, then the light shade of the first two.
+TASK_COLOURS: Final[dict[str, tuple[float, float, float]]] = {
+    "no task": (0.12156862745098039, 0.4666666666666667, 0.7058823529411765),  # tab20[0]
+    "cut": (1.0, 0.4980392156862745, 0.054901960784313725),  # tab20[2]
+    "screw": (0.17254901960784313, 0.6274509803921569, 0.17254901960784313),  # tab20[4]
+    "ladle": (0.8392156862745098, 0.15294117647058825, 0.1568627450980392),  # tab20[6]
+    "fork": (0.5803921568627451, 0.403921568627451, 0.7411764705882353),  # tab20[8]
+    "wrench": (0.5490196078431373, 0.33725490196078434, 0.29411764705882354),  # tab20[10]
+    "hammer": (0.8901960784313725, 0.4666666666666667, 0.7607843137254902),  # tab20[12]
+    "write": (0.4980392156862745, 0.4980392156862745, 0.4980392156862745),  # tab20[14]
+    "brush": (0.7372549019607844, 0.7411764705882353, 0.13333333333333333),  # tab20[16]
+    "shovel": (0.09019607843137255, 0.7450980392156863, 0.8117647058823529),  # tab20[18]
+    "pinch": (0.6823529411764706, 0.7803921568627451, 0.9098039215686274),  # tab20[1]
+    "hand over": (1.0, 0.7333333333333333, 0.47058823529411764),  # tab20[3]
+}

@@ -4,14 +4,15 @@ The mesh is drawn flat, faces tinted by part, in two views along its
 principal axes: looking down the thinnest axis and looking down the middle
 one. Each grasp is a gripper outline (the two fingers at the opening, the
 palm bar and a short stem pointing back along the approach), coloured by
-task label or by the check stage's verdict. The first column shows every
-grasp, the others one task label each, so a person can see at a glance that,
-say, every "hammer" grasp sits on the handle and every "hand over" grasp on
-the head.
+task label (``taxonomy.TASK_COLOURS``) or by the check stage's verdict. The
+first column shows every grasp, the others one task label each, so a person
+can see at a glance that, say, every "hammer" grasp sits on the handle and
+every "hand over" grasp on the head.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -20,20 +21,12 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from osgd.contract.schemas import mesh_from_arrow, vectors_from_arrow
-from osgd.contract.taxonomy import PARTS, TASKS
+from osgd.contract.taxonomy import PARTS, TASK_COLOURS, TASKS
 from osgd.gripper import PANDA, Gripper
 from osgd.store import ShardStore
 
-#: One colour per task label, in ``taxonomy.TASKS`` order (colour-blind
-#: friendly where possible; "no task" grey, "hand over" black).
-TASK_COLORS: dict[str, str] = dict(
-    zip(
-        TASKS,
-        ("#9e9e9e", "#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4",
-         "#e6a100", "#46c8c8", "#f032e6", "#808000", "#008080", "#000000"),
-        strict=True,
-    )
-)
+#: A matplotlib colour: a name or hex string, or (r, g, b) floats in [0, 1].
+Colour = str | tuple[float, float, float]
 
 #: Face tint per part (light, so the grasps stand out); unknown parts grey.
 PART_COLORS: dict[int, str] = {
@@ -119,6 +112,124 @@ def _quaternions_to_matrices(quaternions: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(quaternions).as_matrix()
 
 
+def _grasp_segments(grasps: pa.Table, gripper: Gripper) -> tuple[np.ndarray, np.ndarray]:
+    """Gripper outlines and contact points of every grasp, object frame.
+
+    Returns
+    -------
+    segments : (G, 4, 2, 3) float64
+        The :func:`gripper_outline` of each grasp at its pose and width.
+    contacts : (G, 2, 3) float64
+        Contact points a and b.
+    """
+    if not grasps.num_rows:
+        return np.zeros((0, 4, 2, 3)), np.zeros((0, 2, 3))
+    positions = vectors_from_arrow(grasps.column("position"))
+    rotations = _quaternions_to_matrices(vectors_from_arrow(grasps.column("quaternion"), 4))
+    widths = grasps.column("width").to_numpy()
+    outlines = np.stack([gripper_outline(gripper, width) for width in widths])  # (G, 4, 2, 3)
+    segments = positions[:, None, None, :] + np.einsum("gij,gsej->gsei", rotations, outlines)
+    contacts = np.stack(
+        [vectors_from_arrow(grasps.column("contact_a")), vectors_from_arrow(grasps.column("contact_b"))], axis=1
+    )
+    return segments, contacts
+
+
+def _principal_views(vertices: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """The two views of a mesh: looking down its thinnest and its middle principal axis.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+
+    Returns
+    -------
+    list of (name, projection (2, 3), depth axis (3,))
+        The projection's rows span the image plane; the depth axis points along the view.
+    """
+    # Principal axes, longest first: views look down the thinnest and the middle axis.
+    centred = vertices - vertices.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    return [("looking down the thinnest axis", axes[[0, 1]], axes[2]),
+            ("looking down the middle axis", axes[[0, 2]], axes[1])]
+
+
+def _draw_view(
+    panels: np.ndarray,
+    row: int,
+    view: tuple[str, np.ndarray, np.ndarray],
+    mesh: tuple[np.ndarray, np.ndarray, np.ndarray],
+    columns: list[tuple[str, np.ndarray]],
+    grasp_lines: tuple[np.ndarray, np.ndarray, list[str], Mapping[str, Colour]],
+) -> None:
+    """Draw one row of panels: the mesh in one view with the grasps of each column.
+
+    Parameters
+    ----------
+    panels : (rows, columns) array of matplotlib axes
+    row : int
+        The row to draw into; the first one carries the column titles.
+    view : (name, projection (2, 3), depth axis (3,))
+        From :func:`_principal_views`.
+    mesh : (vertices (V, 3), faces (F, 3), face parts (F,))
+    columns : list of (title, selected (G,) bool)
+        The grasps each column shows.
+    grasp_lines : (segments (G, 4, 2, 3), contacts (G, 2, 3), labels (G,), colours by label)
+    """
+    from matplotlib.collections import LineCollection, PolyCollection  # noqa: PLC0415
+
+    view_name, projection, depth_axis = view
+    vertices, faces, face_parts = mesh
+    segments, contacts, labels, colors = grasp_lines
+    # Painter's order: far faces first.
+    order = np.argsort(vertices[faces].mean(axis=1) @ depth_axis)
+    polygons = (vertices[faces[order]] - vertices.mean(axis=0)) @ projection.T
+    face_colors = [PART_COLORS.get(int(part), PART_COLORS[-1]) for part in face_parts[order]]
+    for column, (title, selected) in enumerate(columns):
+        axis = panels[row, column]
+        axis.add_collection(PolyCollection(polygons, facecolors=face_colors, edgecolors="none"))
+        chosen = np.flatnonzero(selected)
+        lines = (segments[chosen] - vertices.mean(axis=0)) @ projection.T  # (G, 4, 2, 2)
+        line_colors = np.repeat([colors[labels[index]] for index in chosen], 4, axis=0) if len(chosen) else []
+        axis.add_collection(
+            LineCollection(lines.reshape(-1, 2, 2), colors=line_colors, linewidths=0.9, alpha=0.75)
+        )
+        points = (contacts[chosen] - vertices.mean(axis=0)) @ projection.T
+        axis.scatter(points[..., 0].ravel(), points[..., 1].ravel(), s=3, c="#333333", zorder=3)
+        axis.set_aspect("equal")
+        axis.autoscale_view()
+        axis.margins(0.08)
+        axis.set_xticks([])
+        axis.set_yticks([])
+        axis.set_title(f"{title} ({len(chosen)})" if row == 0 else view_name, fontsize=9)
+
+
+def _add_legend(figure, labels: list[str], colors: Mapping[str, Colour], face_parts: np.ndarray) -> None:
+    """The figure's legend: the colour of each label drawn, then the tint of each part.
+
+    Parameters
+    ----------
+    figure : matplotlib Figure
+    labels : list of str
+        The label of each grasp, (G,).
+    colors : dict
+        Colour by label.
+    face_parts : (F,) int64
+        Part index per face, -1 unknown.
+    """
+    from matplotlib.lines import Line2D  # noqa: PLC0415
+    from matplotlib.patches import Patch  # noqa: PLC0415
+
+    shown = [label for label in colors if label in labels]
+    handles = [Line2D([], [], color=colors[label], label=label) for label in shown]
+    part_handles = [
+        Patch(color=PART_COLORS[int(part)], label=PARTS[int(part)] if part >= 0 else "unknown part")
+        for part in np.unique(face_parts)
+    ]
+    figure.legend(handles=handles + part_handles, loc="lower center", ncol=min(len(handles) + len(part_handles), 8),
+                  fontsize=8, frameon=False)
+
+
 def show_grasps(
     store: ShardStore,
     model_id: str,
@@ -159,9 +270,6 @@ def show_grasps(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.collections import LineCollection, PolyCollection  # noqa: PLC0415
-    from matplotlib.lines import Line2D  # noqa: PLC0415
-    from matplotlib.patches import Patch  # noqa: PLC0415
 
     model = _find_model(store, model_id)
     identity = model.column("model_id")[0].as_py()
@@ -172,32 +280,12 @@ def show_grasps(
     grasps = _model_grasps(store, identity)
 
     tasks = grasps.column("task").to_pylist()
-    grasp_ids = grasps.column("grasp_id").to_numpy()
     if color_by == "task":
-        labels = tasks
-        colors = TASK_COLORS
+        labels, colors = tasks, TASK_COLOURS
     else:
-        labels = _stability(store, identity, grasp_ids)
-        colors = STABILITY_COLORS
-
-    # Principal axes, longest first: views look down the thinnest and the middle axis.
-    centred = vertices - vertices.mean(axis=0)
-    _, _, axes = np.linalg.svd(centred, full_matrices=False)
-    views = [("looking down the thinnest axis", axes[[0, 1]], axes[2]),
-             ("looking down the middle axis", axes[[0, 2]], axes[1])]
-
-    if grasps.num_rows:
-        positions = vectors_from_arrow(grasps.column("position"))
-        rotations = _quaternions_to_matrices(vectors_from_arrow(grasps.column("quaternion"), 4))
-        widths = grasps.column("width").to_numpy()
-        outlines = np.stack([gripper_outline(gripper, width) for width in widths])  # (G, 4, 2, 3)
-        segments = positions[:, None, None, :] + np.einsum("gij,gsej->gsei", rotations, outlines)
-        contacts = np.stack(
-            [vectors_from_arrow(grasps.column("contact_a")), vectors_from_arrow(grasps.column("contact_b"))], axis=1
-        )
-    else:
-        segments = np.zeros((0, 4, 2, 3))
-        contacts = np.zeros((0, 2, 3))
+        labels, colors = _stability(store, identity, grasps.column("grasp_id").to_numpy()), STABILITY_COLORS
+    segments, contacts = _grasp_segments(grasps, gripper)
+    views = _principal_views(vertices)
 
     task_groups = [task for task in TASKS if task in tasks]
     columns = [("all grasps", np.ones(len(tasks), dtype=bool))]
@@ -205,36 +293,9 @@ def show_grasps(
     figure, panels = plt.subplots(
         len(views), len(columns), figsize=(4.2 * len(columns), 3.6 * len(views)), squeeze=False
     )
-    for row, (view_name, projection, depth_axis) in enumerate(views):
-        # Painter's order: far faces first.
-        order = np.argsort(vertices[faces].mean(axis=1) @ depth_axis)
-        polygons = (vertices[faces[order]] - vertices.mean(axis=0)) @ projection.T
-        face_colors = [PART_COLORS.get(int(part), PART_COLORS[-1]) for part in face_parts[order]]
-        for column, (title, selected) in enumerate(columns):
-            axis = panels[row, column]
-            axis.add_collection(PolyCollection(polygons, facecolors=face_colors, edgecolors="none"))
-            chosen = np.flatnonzero(selected)
-            lines = (segments[chosen] - vertices.mean(axis=0)) @ projection.T  # (G, 4, 2, 2)
-            line_colors = np.repeat([colors[labels[index]] for index in chosen], 4) if len(chosen) else []
-            axis.add_collection(
-                LineCollection(lines.reshape(-1, 2, 2), colors=line_colors, linewidths=0.9, alpha=0.75)
-            )
-            points = (contacts[chosen] - vertices.mean(axis=0)) @ projection.T
-            axis.scatter(points[..., 0].ravel(), points[..., 1].ravel(), s=3, c="#333333", zorder=3)
-            axis.set_aspect("equal")
-            axis.autoscale_view()
-            axis.margins(0.08)
-            axis.set_xticks([])
-            axis.set_yticks([])
-            axis.set_title(f"{title} ({len(chosen)})" if row == 0 else view_name, fontsize=9)
-    shown = [label for label in colors if label in labels]
-    handles = [Line2D([], [], color=colors[label], label=label) for label in shown]
-    part_handles = [
-        Patch(color=PART_COLORS[int(part)], label=PARTS[int(part)] if part >= 0 else "unknown part")
-        for part in np.unique(face_parts)
-    ]
-    figure.legend(handles=handles + part_handles, loc="lower center", ncol=min(len(handles) + len(part_handles), 8),
-                  fontsize=8, frameon=False)
+    for row, view in enumerate(views):
+        _draw_view(panels, row, view, (vertices, faces, face_parts), columns, (segments, contacts, labels, colors))
+    _add_legend(figure, labels, colors, face_parts)
     figure.suptitle(f"{name} ({category}, {identity}): {grasps.num_rows} grasps coloured by {color_by}", fontsize=10)
     figure.tight_layout(rect=(0, 0.06, 1, 0.95))
     out = Path(out)

@@ -22,9 +22,11 @@ raises :class:`osgd.errors.InputError` naming the file and the cause.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -204,6 +206,18 @@ def _load_points(path: Path) -> np.ndarray:
     return points
 
 
+@contextlib.contextmanager
+def _trimesh_logs_only_errors() -> Iterator[None]:
+    """Raise trimesh's logger to ERROR for a while, then give it back its level."""
+    logger = logging.getLogger("trimesh")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def read_obj(mesh_path: Path) -> trimesh.Trimesh:
     """An OBJ file as one unprocessed Trimesh, object names with trailing backslashes read as names.
 
@@ -214,10 +228,11 @@ def read_obj(mesh_path: Path) -> trimesh.Trimesh:
     """
     data = _NAME_WITH_BACKSLASH.sub(rb"\1\2", Path(mesh_path).read_bytes())
     # The OBJ names a material library that is not shipped; without materials
-    # trimesh logs that and moves on. process=False keeps the raw vertices for validation.
-    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    # trimesh logs that and moves on (not shown: the process's trimesh logger
+    # is left as it was). process=False keeps the raw vertices for validation.
     try:
-        mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh", process=False, skip_materials=True)
+        with _trimesh_logs_only_errors():
+            mesh = trimesh.load(io.BytesIO(data), file_type="obj", force="mesh", process=False, skip_materials=True)
     except Exception as error:  # a third-party parser: any exception means "cannot read this file"
         raise InputError(mesh_path, f"trimesh cannot read it ({type(error).__name__}: {error})") from error
     if not isinstance(mesh, trimesh.Trimesh):

@@ -143,16 +143,71 @@ def check_mesh(mesh: trimesh.Trimesh, face_parts: np.ndarray | None = None, *, n
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ModelRejected(f"{name}: faces index vertices that do not exist")
 
-    finite_vertex = np.isfinite(vertices).all(axis=1)
-    if not finite_vertex.all():
-        keep = finite_vertex[faces].all(axis=1)
-        notes.append(f"dropped {int((~keep).sum())} faces using {int((~finite_vertex).sum())} non-finite vertices")
-        faces, parts = faces[keep], parts[keep]
-        if len(faces) == 0:
-            raise ModelRejected(f"{name}: every face uses a non-finite vertex")
-        vertices = np.where(finite_vertex[:, None], vertices, 0.0)
+    vertices, faces, parts = _drop_non_finite(vertices, faces, parts, notes, name)
+    work, parts = _drop_degenerate(trimesh.Trimesh(vertices, faces, process=False), parts, notes, name)
+    work, parts = _keep_largest_object(work, parts, notes)
+    parts = _close_and_orient(work, parts, notes)
+    is_closed = bool(work.is_watertight and work.is_winding_consistent and work.volume > 0)
+    return CheckedMesh(work, parts.astype(np.int8), notes, is_closed)
 
-    work = trimesh.Trimesh(vertices, faces, process=False)
+
+def _drop_non_finite(
+    vertices: np.ndarray, faces: np.ndarray, parts: np.ndarray, notes: list[str], name: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Drop the faces that use a non-finite vertex; such vertices become 0 (unused).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    parts : (F,) int8
+    notes : list of str
+        A note is appended when faces are dropped.
+    name : str
+
+    Returns
+    -------
+    vertices (V, 3), faces (F', 3), parts (F',)
+
+    Raises
+    ------
+    ModelRejected
+        When every face uses a non-finite vertex.
+    """
+    finite_vertex = np.isfinite(vertices).all(axis=1)
+    if finite_vertex.all():
+        return vertices, faces, parts
+    keep = finite_vertex[faces].all(axis=1)
+    notes.append(f"dropped {int((~keep).sum())} faces using {int((~finite_vertex).sum())} non-finite vertices")
+    faces, parts = faces[keep], parts[keep]
+    if len(faces) == 0:
+        raise ModelRejected(f"{name}: every face uses a non-finite vertex")
+    return np.where(finite_vertex[:, None], vertices, 0.0), faces, parts
+
+
+def _drop_degenerate(
+    work: trimesh.Trimesh, parts: np.ndarray, notes: list[str], name: str
+) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Merge duplicate vertices, drop degenerate and duplicate faces; reject what is empty or flat.
+
+    Parameters
+    ----------
+    work : trimesh.Trimesh
+        Modified in place (vertices merged).
+    parts : (F,) int8
+    notes : list of str
+        A note is appended when faces are dropped.
+    name : str
+
+    Returns
+    -------
+    mesh, parts (F',)
+
+    Raises
+    ------
+    ModelRejected
+        When every face is degenerate or the mesh is flat.
+    """
     work.merge_vertices()
     keep = work.nondegenerate_faces(height=1e-12 * float(work.extents.max() or 1.0))
     unique = np.zeros(len(work.faces), dtype=bool)
@@ -166,42 +221,77 @@ def check_mesh(mesh: trimesh.Trimesh, face_parts: np.ndarray | None = None, *, n
     extents = work.extents
     if float(extents.min()) <= FLAT_RATIO * float(extents.max()):
         raise ModelRejected(f"{name}: degenerate mesh, flat (extents {np.round(extents, 6).tolist()})")
+    return work, parts
 
+
+def _keep_largest_object(
+    work: trimesh.Trimesh, parts: np.ndarray, notes: list[str]
+) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Keep only the object (:func:`_object_groups`) with the largest surface area.
+
+    Parameters
+    ----------
+    work : trimesh.Trimesh
+    parts : (F,) int8
+    notes : list of str
+        A note is appended when objects are dropped.
+
+    Returns
+    -------
+    mesh, parts (F',)
+    """
     groups = _object_groups(work)
-    if len(groups) > 1:
-        areas = np.array([work.area_faces[group].sum() for group in groups])
-        largest = int(areas.argmax())
-        mask = np.zeros(len(work.faces), dtype=bool)
-        mask[groups[largest]] = True
-        dropped_share = 1.0 - areas[largest] / areas.sum()
-        notes.append(
-            f"{len(groups)} separate bodies: kept the largest, dropped {len(groups) - 1} "
-            f"({dropped_share:.1%} of the surface area)"
-        )
-        work, parts = _keep_faces(work, parts, mask)
+    if len(groups) <= 1:
+        return work, parts
+    areas = np.array([work.area_faces[group].sum() for group in groups])
+    largest = int(areas.argmax())
+    mask = np.zeros(len(work.faces), dtype=bool)
+    mask[groups[largest]] = True
+    dropped_share = 1.0 - areas[largest] / areas.sum()
+    notes.append(
+        f"{len(groups)} separate bodies: kept the largest, dropped {len(groups) - 1} "
+        f"({dropped_share:.1%} of the surface area)"
+    )
+    return _keep_faces(work, parts, mask)
 
+
+def _close_and_orient(work: trimesh.Trimesh, parts: np.ndarray, notes: list[str]) -> np.ndarray:
+    """Close small holes and make the winding consistent and outward, in place.
+
+    Parameters
+    ----------
+    work : trimesh.Trimesh
+        Modified in place: patch faces appended, faces flipped.
+    parts : (F,) int8
+    notes : list of str
+        A note is appended for each repair.
+
+    Returns
+    -------
+    (F',) int8
+        Part per face; a patch face takes the part of the nearest original face.
+    """
     if work.is_watertight:
         volume_before = work.volume
         trimesh.repair.fix_normals(work)
         if volume_before < 0:
             notes.append("the mesh was inside out; fixed the winding")
+        return parts
+    face_count = len(work.faces)
+    trimesh.repair.fill_holes(work)
+    if len(work.faces) > face_count:
+        # Label the patch faces with the part of the nearest original face.
+        original_centres = trimesh.Trimesh(work.vertices, work.faces[:face_count], process=False).triangles_center
+        added_centres = work.triangles_center[face_count:]
+        _, nearest = cKDTree(original_centres).query(added_centres)
+        parts = np.concatenate([parts, parts[nearest]])
+    if work.is_watertight:
+        trimesh.repair.fix_normals(work)
+        notes.append("closed small holes in the surface")
     else:
-        face_count = len(work.faces)
-        trimesh.repair.fill_holes(work)
-        if len(work.faces) > face_count:
-            # Label the patch faces with the part of the nearest original face.
-            original_centres = trimesh.Trimesh(work.vertices, work.faces[:face_count], process=False).triangles_center
-            added_centres = work.triangles_center[face_count:]
-            _, nearest = cKDTree(original_centres).query(added_centres)
-            parts = np.concatenate([parts, parts[nearest]])
-        if work.is_watertight:
-            trimesh.repair.fix_normals(work)
-            notes.append("closed small holes in the surface")
-        else:
-            trimesh.repair.fix_winding(work)
-            notes.append("open surface (not watertight): mass and inertia come from the convex parts")
-    is_closed = bool(work.is_watertight and work.is_winding_consistent and work.volume > 0)
-    return CheckedMesh(work, parts.astype(np.int8), notes, is_closed)
+        trimesh.repair.fix_winding(work)
+        notes.append("open surface (not watertight): mass and inertia come from the convex parts")
+    return parts
 
 
 def check_length(length: float, category: str, *, name: str = "mesh") -> None:

@@ -20,10 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from osgd.gripper import Gripper
-from osgd.physics import create_object_body, physics_client
-from osgd.quiet import import_pybullet
-
-pybullet = import_pybullet()
+from osgd.physics import create_object_body, physics_client, pybullet_module
 
 
 class PileCollider:
@@ -63,6 +60,7 @@ class PileCollider:
         opening : float
             Finger opening, metres.
         """
+        pybullet = pybullet_module()
         others = [body for index, body in enumerate(self.bodies) if index != object_index]
         if not others:
             return False
@@ -85,6 +83,7 @@ class PileCollider:
         (Removing a body made from a shape array fails in pybullet 3.2.7,
         so bodies are kept for the life of the world.)
         """
+        pybullet = pybullet_module()
         body = self._grippers.get(opening)
         if body is None:
             boxes = self.gripper.boxes(opening)

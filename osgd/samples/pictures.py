@@ -1,7 +1,7 @@
 """Pictures of samples: depth in a colour map, object boxes, grasp rectangles.
 
 Like the paper's figures 2 and 7: each object's box labelled with its
-category, each grasp rectangle coloured by its task (legend on the side);
+category, each grasp rectangle coloured by its task (``taxonomy.TASK_COLOURS``, legend on the side);
 the rectangle's finger-plate edges (across the closing direction) are drawn
 thick, the edges along the closing direction thin.
 """
@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow.compute as pc
 
 from osgd.contract.samples import Sample, decode_row
-from osgd.contract.taxonomy import TASK_INDEX, TASKS
+from osgd.contract.taxonomy import TASK_COLOURS, TASKS
 from osgd.samples.projection import rectangle_corners
 from osgd.store import ShardStore
 
@@ -37,14 +37,6 @@ def find_sample(store: ShardStore, sample_id: str) -> Sample:
             table = store.read("samples", key).filter(matches)
             return decode_row(table.to_pylist()[0])
     raise KeyError(f"no sample {sample_id!r} in {store.root / 'samples'} ({len(keys)} shards searched)")
-
-
-def task_colours() -> dict[str, tuple[float, float, float, float]]:
-    """One colour per task label (matplotlib's tab20, in Table I order)."""
-    from matplotlib import colormaps  # noqa: PLC0415
-
-    palette = colormaps["tab20"]
-    return {task: palette((2 * TASK_INDEX[task]) % 20 + (TASK_INDEX[task] >= 10)) for task in TASKS}
 
 
 def view_window(sample: Sample, grow: float = 1.3, margin: int = 16, minimum: int = 160) -> tuple[int, int, int, int]:
@@ -94,7 +86,7 @@ def draw_sample(sample: Sample, axes, noisy: bool = True, crop: bool = True) -> 
                                  linewidth=1.2))
         axes.text(x1, y1 - 3, category, color="black", fontsize=7,
                   bbox={"facecolor": "white", "alpha": 0.8, "pad": 1, "edgecolor": "none"})
-    colours = task_colours()
+    colours = TASK_COLOURS
     tasks = [TASKS[index] for index in sample.grasp_tasks]
     for corners, task in zip(rectangle_corners(sample.grasp_rectangles), tasks, strict=True):
         colour = colours[task]

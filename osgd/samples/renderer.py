@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import functools
 import logging
 import pkgutil
 import shutil
@@ -45,7 +46,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import CameraIntrinsics
-from osgd.quiet import import_pybullet, native_output_hidden
+from osgd.physics import pybullet_module
+from osgd.quiet import native_output_hidden
 from osgd.raycast import plane_hit_distances, rotate_rows
 from osgd.samples.viewpoint import CameraPose
 
@@ -221,9 +223,7 @@ pybullet.getCameraImage(8, 8, renderer=pybullet.ER_BULLET_HARDWARE_OPENGL, physi
 print("egl-ok")
 """
 
-_EGL_STATUS: tuple[bool, str] | None = None
-
-
+@functools.cache
 def egl_available(timeout: float = 60.0) -> tuple[bool, str]:
     """Whether pybullet's EGL plugin loads and renders here.
 
@@ -236,21 +236,16 @@ def egl_available(timeout: float = 60.0) -> tuple[bool, str]:
     reason : str
         Why not, when not.
     """
-    global _EGL_STATUS
-    if _EGL_STATUS is None:
-        try:
-            result = subprocess.run(
-                [sys.executable, "-c", _EGL_PROBE], capture_output=True, text=True, timeout=timeout, check=False
-            )
-        except (OSError, subprocess.TimeoutExpired) as error:
-            _EGL_STATUS = (False, f"EGL probe did not run: {error}")
-        else:
-            if result.returncode == 0 and "egl-ok" in result.stdout:
-                _EGL_STATUS = (True, "")
-            else:
-                tail = (result.stdout + result.stderr).strip().splitlines()[-3:]
-                _EGL_STATUS = (False, f"EGL probe exited with {result.returncode}: {' | '.join(tail)}")
-    return _EGL_STATUS
+    try:
+        result = subprocess.run(
+            [sys.executable, "-c", _EGL_PROBE], capture_output=True, text=True, timeout=timeout, check=False
+        )
+    except (OSError, subprocess.TimeoutExpired) as error:
+        return False, f"EGL probe did not run: {error}"
+    if result.returncode == 0 and "egl-ok" in result.stdout:
+        return True, ""
+    tail = (result.stdout + result.stderr).strip().splitlines()[-3:]
+    return False, f"EGL probe exited with {result.returncode}: {' | '.join(tail)}"
 
 
 def gl_view_matrix(pose: CameraPose) -> list[float]:
@@ -298,8 +293,7 @@ class PybulletRenderer:
     """
 
     def __init__(self, backend: str, floor_half_size: float = 5.0) -> None:
-        pybullet = import_pybullet()
-
+        pybullet = pybullet_module()
         if backend not in ("egl", "tiny"):
             raise ValueError(f"pybullet backend must be 'egl' or 'tiny', not {backend!r}")
         self.name = backend

@@ -41,7 +41,7 @@ from osgd.contract.schemas import SAMPLES
 from osgd.contract.shards import ShardRecord
 from osgd.gripper import PANDA, Gripper
 from osgd.samples.boxes import silhouette_pixels, visible_boxes
-from osgd.samples.collision import pile_collider
+from osgd.samples.collision import PileCollider, pile_collider
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.projection import (
     GraspSet,
@@ -180,6 +180,28 @@ def _pose_matrix(position: Sequence[float], quaternion: Sequence[float]) -> tupl
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class _CameraView:
+    """What the camera of one sample saw: the frame grasps are judged in.
+
+    Attributes
+    ----------
+    intrinsics : CameraIntrinsics
+        The (possibly cropped) camera.
+    pose : CameraPose
+        Camera pose in the world frame.
+    depth_clean : (H, W) float64
+        Noise-free depth, m; 0 outside the sensor's range.
+    mask : (H, W) int32
+        Object index + 1 per pixel, 0 for the floor.
+    """
+
+    intrinsics: CameraIntrinsics
+    pose: CameraPose
+    depth_clean: np.ndarray
+    mask: np.ndarray
+
+
 def render_sample(
     scene: Mapping[str, Any],
     view: int,
@@ -223,16 +245,7 @@ def render_sample(
     aim = np.array([*positions[:, :2].mean(axis=0), 0.0]) if len(positions) else np.zeros(3)
     pose = draw_camera_pose(rng, aim, params.camera_height, params.max_tilt, params.max_yaw)
 
-    render_objects = []
-    for obj in objects:
-        model = models[obj["model_id"]]
-        render_objects.append(RenderObject(
-            key=obj["model_id"],
-            vertices=np.asarray(model["vertices"], dtype=np.float64).reshape(-1, 3),
-            faces=np.asarray(model["faces"], dtype=np.int64).reshape(-1, 3),
-            position=np.asarray(obj["position"], dtype=np.float64),
-            quaternion=np.asarray(obj["quaternion"], dtype=np.float64),
-        ))
+    render_objects = _render_objects(objects, models)
     if params.crop_size and render_objects:
         intrinsics = crop_around_objects(intrinsics, pose, render_objects, params.crop_size,
                                          float(rng.uniform(*params.crop_margin)))
@@ -241,67 +254,16 @@ def render_sample(
     depth_clean = np.where(in_range, rendering.depth, 0.0)
     depth = add_noise(depth_clean, rng, params.noise())
 
-    boxes, visible = visible_boxes(rendering.mask, len(objects))
-    sample_objects = []
-    kept_indices = []
-    for index, obj in enumerate(objects):
-        if visible[index] == 0:
-            continue
-        silhouette = silhouette_pixels(render_objects[index], intrinsics, pose)
-        fraction = min(1.0, visible[index] / silhouette) if silhouette else 0.0
-        if fraction < params.min_visible_fraction:
-            continue
-        kept_indices.append(index)
-        sample_objects.append({
-            "object_index": index,
-            "model_id": obj["model_id"],
-            "category": obj["category"],
-            "box": boxes[index].tolist(),
-            "visible_fraction": fraction,
-        })
-
-    camera_rotation_inverse = pose.rotation.T
-    sample_grasps = []
+    sample_objects = _visible_objects(objects, render_objects, rendering.mask, intrinsics, pose,
+                                      params.min_visible_fraction)
+    camera_view = _CameraView(intrinsics, pose, depth_clean, rendering.mask)
+    sample_grasps: list[dict[str, Any]] = []
     with pile_collider(models, objects, gripper, params.collision_tolerance) as collider:
-        for index in kept_indices:
-            obj = objects[index]
-            grasps = stable_grasps.get(obj["model_id"])
-            if grasps is None or not len(grasps):
-                continue
-            object_rotation, object_position = _pose_matrix(obj["position"], obj["quaternion"])
-            world = grasps.transformed(object_rotation, object_position)
-            camera = world.transformed(camera_rotation_inverse, -camera_rotation_inverse @ pose.position)
-            angles = angle_to_optical_axis(camera.closing)
-            usable = (
-                (angles >= params.min_angle_to_optical_axis - 1e-9)
-                & centres_in_image(camera, intrinsics)
-                & contacts_visible(camera, depth_clean, rendering.mask, index + 1, intrinsics, params.contact_tolerance)
-            )
-            candidates = np.nonzero(usable)[0]
-            if not len(candidates):
-                continue
-
-            def free(position: int, candidates: np.ndarray = candidates, world: GraspSet = world,
-                     index: int = index) -> bool:
-                grasp = candidates[position]
-                return not collider.collides(index, world.positions[grasp], world.rotations[grasp],
-                                             float(world.widths[grasp]))
-
-            kept = candidates[suppress(camera.positions[candidates], angles[candidates], params.nms_radius, free)]
-            kept = np.sort(kept)
-            chosen = camera.subset(kept)
-            rectangles = grasp_rectangles(chosen, intrinsics, gripper.finger_width)
-            quaternions = chosen.quaternions
-            for row in range(len(chosen)):
-                sample_grasps.append({
-                    "object_index": index,
-                    "grasp_id": int(chosen.grasp_ids[row]),
-                    "task": str(chosen.tasks[row]),
-                    "rectangle": rectangles[row].tolist(),
-                    "position": chosen.positions[row].tolist(),
-                    "quaternion": quaternions[row].tolist(),
-                    "width": float(chosen.widths[row]),
-                })
+        for sample_object in sample_objects:
+            index = sample_object["object_index"]
+            grasps = stable_grasps.get(objects[index]["model_id"])
+            if grasps is not None and len(grasps):
+                sample_grasps += _object_grasps(index, objects[index], grasps, camera_view, collider, params, gripper)
 
     mask = rendering.mask
     if mask.max(initial=0) > 255:
@@ -322,6 +284,143 @@ def render_sample(
         "objects": sample_objects,
         "grasps": sample_grasps,
     }
+
+
+def _render_objects(
+    objects: Sequence[Mapping[str, Any]], models: Mapping[str, Mapping[str, Any]]
+) -> list[RenderObject]:
+    """The scene's objects posed in the world, with their models' meshes, in scene order."""
+    render_objects = []
+    for obj in objects:
+        model = models[obj["model_id"]]
+        render_objects.append(RenderObject(
+            key=obj["model_id"],
+            vertices=np.asarray(model["vertices"], dtype=np.float64).reshape(-1, 3),
+            faces=np.asarray(model["faces"], dtype=np.int64).reshape(-1, 3),
+            position=np.asarray(obj["position"], dtype=np.float64),
+            quaternion=np.asarray(obj["quaternion"], dtype=np.float64),
+        ))
+    return render_objects
+
+
+def _visible_objects(
+    objects: Sequence[Mapping[str, Any]],
+    render_objects: Sequence[RenderObject],
+    mask: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    pose: CameraPose,
+    min_visible_fraction: float,
+) -> list[dict[str, Any]]:
+    """The ``objects`` entries of a sample: every object seen enough, in scene order.
+
+    Parameters
+    ----------
+    objects : sequence of mapping
+        The scene's objects (``scenes`` row entries).
+    render_objects : sequence of RenderObject
+        The same objects, posed.
+    mask : (H, W) int32
+        Object index + 1 per pixel, 0 for the floor.
+    intrinsics : CameraIntrinsics
+    pose : CameraPose
+    min_visible_fraction : float
+        Objects showing less of their silhouette than this are left out.
+
+    Returns
+    -------
+    list of dict
+        ``object_index``, ``model_id``, ``category``, ``box`` (4,) and ``visible_fraction`` per kept object.
+    """
+    boxes, visible = visible_boxes(mask, len(objects))
+    sample_objects = []
+    for index, obj in enumerate(objects):
+        if visible[index] == 0:
+            continue
+        silhouette = silhouette_pixels(render_objects[index], intrinsics, pose)
+        fraction = min(1.0, visible[index] / silhouette) if silhouette else 0.0
+        if fraction < min_visible_fraction:
+            continue
+        sample_objects.append({
+            "object_index": index,
+            "model_id": obj["model_id"],
+            "category": obj["category"],
+            "box": boxes[index].tolist(),
+            "visible_fraction": fraction,
+        })
+    return sample_objects
+
+
+def _object_grasps(
+    index: int,
+    obj: Mapping[str, Any],
+    grasps: GraspSet,
+    camera_view: _CameraView,
+    collider: PileCollider,
+    params: SamplesStageParams,
+    gripper: Gripper,
+) -> list[dict[str, Any]]:
+    """The ``grasps`` entries of one object: its stable grasps usable from this view.
+
+    A grasp is usable when its closing direction is far enough from the
+    optical axis, its centre is in the image and its contacts are visible;
+    of those, non-maximum suppression keeps the ones most parallel to the
+    image whose hand touches no other object.
+
+    Parameters
+    ----------
+    index : int
+        The object's index in the scene.
+    obj : mapping
+        The scene's entry of the object (pose).
+    grasps : GraspSet
+        The object's stable grasps, object frame.
+    camera_view : _CameraView
+    collider : PileCollider
+        The pile, for the hand's collisions.
+    params : SamplesStageParams
+    gripper : Gripper
+
+    Returns
+    -------
+    list of dict
+        Keyed by the fields of a ``grasps`` entry of ``osgd.contract.schemas.SAMPLES``, ordered by grasp.
+    """
+    pose, intrinsics = camera_view.pose, camera_view.intrinsics
+    object_rotation, object_position = _pose_matrix(obj["position"], obj["quaternion"])
+    world = grasps.transformed(object_rotation, object_position)
+    camera_rotation_inverse = pose.rotation.T
+    camera = world.transformed(camera_rotation_inverse, -camera_rotation_inverse @ pose.position)
+    angles = angle_to_optical_axis(camera.closing)
+    usable = (
+        (angles >= params.min_angle_to_optical_axis - 1e-9)
+        & centres_in_image(camera, intrinsics)
+        & contacts_visible(camera, camera_view.depth_clean, camera_view.mask, index + 1, intrinsics,
+                           params.contact_tolerance)
+    )
+    candidates = np.nonzero(usable)[0]
+    if not len(candidates):
+        return []
+
+    def free(position: int) -> bool:
+        grasp = candidates[position]
+        return not collider.collides(index, world.positions[grasp], world.rotations[grasp], float(world.widths[grasp]))
+
+    kept = np.sort(candidates[suppress(camera.positions[candidates], angles[candidates], params.nms_radius, free)])
+    chosen = camera.subset(kept)
+    rectangles = grasp_rectangles(chosen, intrinsics, gripper.finger_width)
+    quaternions = chosen.quaternions
+    return [
+        {
+            "object_index": index,
+            "grasp_id": int(chosen.grasp_ids[row]),
+            "task": str(chosen.tasks[row]),
+            "rectangle": rectangles[row].tolist(),
+            "position": chosen.positions[row].tolist(),
+            "quaternion": quaternions[row].tolist(),
+            "width": float(chosen.widths[row]),
+        }
+        for row in range(len(chosen))
+    ]
 
 
 def crop_around_objects(

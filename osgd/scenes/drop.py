@@ -33,11 +33,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from osgd.physics import ObjectBody, create_object_body, get_mesh_pose, physics_client
-from osgd.quiet import import_pybullet
+from osgd.physics import ObjectBody, create_object_body, get_mesh_pose, physics_client, pybullet_module
 from osgd.scenes.params import ScenesStageParams
-
-pybullet = import_pybullet()
 
 log = logging.getLogger(__name__)
 
@@ -190,6 +187,7 @@ class DropOutcome:
 
 def build_world(client: int, params: ScenesStageParams) -> list[int]:
     """The floor plane at z = 0 and four walls around the area; returns body ids."""
+    pybullet = pybullet_module()
     lateral, rolling, spinning = params.floor_friction
     plane = pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client)
     bodies = [pybullet.createMultiBody(0, plane, physicsClientId=client)]
@@ -211,6 +209,7 @@ def build_world(client: int, params: ScenesStageParams) -> list[int]:
 
 def _release(client: int, pool: ModelPool, release: Release, objects: list[ObjectBody],
              params: ScenesStageParams) -> ObjectBody:
+    pybullet = pybullet_module()
     rotated = Rotation.from_quat(release.quaternion).apply(pool.hull_points(release.model_index))
     low, high = rotated.min(axis=0), rotated.max(axis=0)
     box_centre = (low + high) / 2
@@ -238,54 +237,27 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
     -------
     DropOutcome
     """
+    pybullet = pybullet_module()
     dt = params.timestep
-    half = params.area_size / 2
-    max_steps = math.ceil(params.max_sim_time / dt)
     release_steps = [0] * len(releases) if initial_poses is not None else [
         round(index * params.release_interval / dt) for index in range(len(releases))
     ]
     last_release = max(release_steps, default=0)
     fixed_steps = math.ceil(params.fixed_sim_time / dt) if params.fixed_sim_time > 0 else 0
-    if fixed_steps:
-        max_steps = last_release + fixed_steps
+    max_steps = last_release + fixed_steps if fixed_steps else math.ceil(params.max_sim_time / dt)
     with physics_client(timestep=dt) as client:
         build_world(client, params)
         objects: list[ObjectBody] = []
         step = 0
-        reason = detail = ""
+        reason = detail = mover = ""
         at_rest = False
         window_start: list[tuple[np.ndarray, np.ndarray]] | None = None
-        mover = ""
         while True:
             while len(objects) < len(releases) and release_steps[len(objects)] <= step:
-                index = len(objects)
-                if initial_poses is not None:
-                    position, quaternion = initial_poses[index]
-                    objects.append(create_object_body(client, pool.rows[releases[index].model_index],
-                                                      np.asarray(position), np.asarray(quaternion)))
-                else:
-                    objects.append(_release(client, pool, releases[index], objects, params))
+                objects.append(_next_body(client, pool, releases, objects, params, initial_poses))
             pybullet.stepSimulation(physicsClientId=client)
             step += 1
-            for body in objects:
-                linear, angular = pybullet.getBaseVelocity(body.body_id, physicsClientId=client)
-                position = pybullet.getBasePositionAndOrientation(body.body_id, physicsClientId=client)[0]
-                linear_speed, angular_speed = math.hypot(*linear), math.hypot(*angular)
-                if not (math.isfinite(linear_speed) and math.isfinite(angular_speed)
-                        and all(math.isfinite(value) for value in position)):
-                    reason, detail = "blew_up", f"{body.model_id}: non-finite state at step {step}"
-                elif linear_speed > params.max_linear_speed or angular_speed > params.max_angular_speed:
-                    reason = "blew_up"
-                    detail = f"{body.model_id}: {linear_speed:.2f} m/s, {angular_speed:.1f} rad/s at step {step}"
-                elif abs(position[0]) > half or abs(position[1]) > half:
-                    reason, detail = "left_area", f"{body.model_id}: at {np.round(position, 3)} at step {step}"
-                elif pybullet.getAABB(body.body_id, physicsClientId=client)[1][2] < 0.0:
-                    # Wholly below the floor. (The centre of mass of a 3 mm
-                    # fork dips a millimetre below z = 0 on impact, and the
-                    # floor pushes it back up: that is no fall.)
-                    reason, detail = "fell_through_floor", f"{body.model_id}: z = {position[2]:.3f} at step {step}"
-                if reason:
-                    break
+            reason, detail = _runaway(client, objects, params, step)
             if reason:
                 break
             # At rest: over the last window of rest_steps steps every object
@@ -297,20 +269,18 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
             if len(objects) == len(releases) and step > last_release and (step - last_release) % params.rest_steps == 0:
                 poses = [_com_pose(client, body) for body in objects]
                 if window_start is not None:
-                    window = params.rest_steps * dt
-                    at_rest, mover = _window_at_rest(window_start, poses, objects, params, window)
+                    at_rest, mover = _window_at_rest(window_start, poses, objects, params, params.rest_steps * dt)
                     if at_rest and fixed_steps == 0:
                         break
                 window_start = poses
             if step >= max_steps:
                 break
         settled = at_rest
-        if not reason and not settled and params.reject_unsettled:
-            reason, detail = "not_settled", f"still moving after {step * dt:.2f} s: {mover}"
+        if not reason and len(objects) < len(releases):  # a pile without all its objects is never kept
+            reason, detail = "not_settled", (f"max_sim_time {params.max_sim_time} s ended before object "
+                                             f"{len(objects) + 1} of {len(releases)} was released")
         if not reason:
-            depth, pair = deepest_penetration(client, [body.body_id for body in objects])
-            if depth > params.penetration_tolerance:
-                reason, detail = "interpenetration", f"bodies {pair} overlap by {depth * 1000:.1f} mm"
+            reason, detail = _final_verdict(client, objects, params, settled, f"{step * dt:.2f}", mover)
         poses = [get_mesh_pose(body) for body in objects]
     positions = np.array([pose[0] for pose in poses], dtype=np.float64).reshape(-1, 3)
     quaternions = np.array([pose[1] for pose in poses], dtype=np.float64).reshape(-1, 4)
@@ -319,7 +289,74 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
     return DropOutcome(reason, positions, quaternions, settled, step * dt, step, detail)
 
 
+def _next_body(client: int, pool: ModelPool, releases: Sequence[Release], objects: list[ObjectBody],
+               params: ScenesStageParams,
+               initial_poses: Sequence[tuple[np.ndarray, np.ndarray]] | None) -> ObjectBody:
+    """The next object of ``releases`` in the world: released, or placed at its initial pose."""
+    index = len(objects)
+    if initial_poses is None:
+        return _release(client, pool, releases[index], objects, params)
+    position, quaternion = initial_poses[index]
+    return create_object_body(client, pool.rows[releases[index].model_index], np.asarray(position),
+                              np.asarray(quaternion))
+
+
+def _runaway(client: int, objects: Sequence[ObjectBody], params: ScenesStageParams, step: int) -> tuple[str, str]:
+    """Why the simulation went wrong at this step, for the first object that shows it.
+
+    Returns
+    -------
+    reason : str
+        ``"blew_up"``, ``"left_area"``, ``"fell_through_floor"`` or ``""`` when all is well.
+    detail : str
+        Which object and how ("" when all is well).
+    """
+    pybullet = pybullet_module()
+    half = params.area_size / 2
+    for body in objects:
+        linear, angular = pybullet.getBaseVelocity(body.body_id, physicsClientId=client)
+        position = pybullet.getBasePositionAndOrientation(body.body_id, physicsClientId=client)[0]
+        linear_speed, angular_speed = math.hypot(*linear), math.hypot(*angular)
+        if not (math.isfinite(linear_speed) and math.isfinite(angular_speed)
+                and all(math.isfinite(value) for value in position)):
+            return "blew_up", f"{body.model_id}: non-finite state at step {step}"
+        if linear_speed > params.max_linear_speed or angular_speed > params.max_angular_speed:
+            return "blew_up", f"{body.model_id}: {linear_speed:.2f} m/s, {angular_speed:.1f} rad/s at step {step}"
+        if abs(position[0]) > half or abs(position[1]) > half:
+            return "left_area", f"{body.model_id}: at {np.round(position, 3)} at step {step}"
+        if pybullet.getAABB(body.body_id, physicsClientId=client)[1][2] < 0.0:
+            # Wholly below the floor. (The centre of mass of a 3 mm
+            # fork dips a millimetre below z = 0 on impact, and the
+            # floor pushes it back up: that is no fall.)
+            return "fell_through_floor", f"{body.model_id}: z = {position[2]:.3f} at step {step}"
+    return "", ""
+
+
+def _final_verdict(client: int, objects: Sequence[ObjectBody], params: ScenesStageParams, settled: bool,
+                   elapsed: str, mover: str) -> tuple[str, str]:
+    """Why a simulation that ran its course is rejected: unsettled or interpenetrating ("" when accepted).
+
+    Parameters
+    ----------
+    elapsed : str
+        Simulated seconds, as the message shows them.
+    mover : str
+        The object that moved most in the last rest window (from :func:`_window_at_rest`).
+
+    Returns
+    -------
+    reason, detail : str
+    """
+    if not settled and params.reject_unsettled:
+        return "not_settled", f"still moving after {elapsed} s: {mover}"
+    depth, pair = deepest_penetration(client, [body.body_id for body in objects])
+    if depth > params.penetration_tolerance:
+        return "interpenetration", f"bodies {pair} overlap by {depth * 1000:.1f} mm"
+    return "", ""
+
+
 def _com_pose(client: int, body: ObjectBody) -> tuple[np.ndarray, np.ndarray]:
+    pybullet = pybullet_module()
     position, quaternion = pybullet.getBasePositionAndOrientation(body.body_id, physicsClientId=client)
     return np.asarray(position, dtype=np.float64), np.asarray(quaternion, dtype=np.float64)
 
@@ -357,6 +394,7 @@ def deepest_penetration(client: int, object_ids: Sequence[int]) -> tuple[float, 
     pair : (int, int)
         Body ids of the deepest pair ((-1, -1) when none).
     """
+    pybullet = pybullet_module()
     deepest, pair = 0.0, (-1, -1)
     objects = set(object_ids)
     for contact in pybullet.getContactPoints(physicsClientId=client):

@@ -26,12 +26,9 @@ from typing import Any
 import numpy as np
 
 from osgd.contract.shards import ShardRecord
-from osgd.physics import create_object_body, physics_client
-from osgd.quiet import import_pybullet
+from osgd.physics import create_object_body, physics_client, pybullet_module
 from osgd.scenes.views import cast_view, load_models, posed_meshes
 from osgd.store import ShardStore
-
-pybullet = import_pybullet()
 
 #: Objects closer than this touch, metres (pybullet rests bodies a fraction of a millimetre apart or in).
 CONTACT_DISTANCE = 0.002
@@ -80,6 +77,7 @@ def scene_contacts(scene: Mapping[str, Any], models: Mapping[str, Mapping[str, A
     -------
     touching, lying_on, off_floor : int
     """
+    pybullet = pybullet_module()
     with physics_client() as client:
         floor = pybullet.createMultiBody(
             0, pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client), physicsClientId=client

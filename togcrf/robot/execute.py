@@ -244,11 +244,10 @@ class _Scene:
 
     def __init__(self, client: int, world: World, scene: dict[str, Any], grasp: GraspPose) -> None:
         from osgd.checks.hand import create_hand  # noqa: PLC0415
-        from osgd.physics import create_object_body  # noqa: PLC0415
-        from osgd.quiet import import_pybullet  # noqa: PLC0415
+        from osgd.physics import create_object_body, pybullet_module  # noqa: PLC0415
         from osgd.scenes.drop import build_world  # noqa: PLC0415
 
-        self.pybullet = import_pybullet()
+        self.pybullet = pybullet_module()
         self.client = client
         self.checks = world.params("checks")
         self.steps = 0

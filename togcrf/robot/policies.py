@@ -31,6 +31,7 @@ from typing import Any, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from togcrf.checkpoint import load_checkpoint
 from togcrf.robot.pile import Observation
 from togcrf.robot.protocol import Trial, trial_rng
 
@@ -180,7 +181,6 @@ def model_policy(checkpoint: Path, name: str | None = None, *, min_score: float 
     FileNotFoundError, ValueError
         Not a togcrf checkpoint.
     """
-    from togcrf.train import load_checkpoint  # noqa: PLC0415
 
     model, config = load_checkpoint(checkpoint, device=device)
     checkpoint = Path(checkpoint)

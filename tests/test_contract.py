@@ -1,0 +1,181 @@
+"""The data contract (osgd.contract): the boundary between the generator and the detector, and the vocabulary.
+
+togcrf reads the generator's data through ``osgd.contract`` only (its robot
+experiment, which runs the generator's physics and renderer, excepted);
+the contract imports only the standard library, numpy, pyarrow and OpenCV.
+Samples shards and checkpoints record the vocabulary they were labelled
+and trained with, and a model refuses data labelled with another.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import json
+import logging
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import torch
+import typer
+from helpers import write_synthetic_samples
+from typer.testing import CliRunner
+
+from osgd.contract.samples import sample_shards, samples_vocabulary, shard_vocabulary
+from osgd.contract.shards import file_sha256
+from osgd.contract.taxonomy import VOCABULARY
+from osgd.store import ShardStore, canonical_json
+from togcrf import train as train_module
+from togcrf.checkpoint import read_checkpoint, save_checkpoint
+from togcrf.cli import app
+from togcrf.train import TrainConfig, train
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: What the contract may import besides the standard library and itself.
+CONTRACT_DEPENDENCIES = {"numpy", "pyarrow", "cv2"}
+
+
+def imported_modules(path: Path) -> list[str]:
+    """Every module a Python file imports, anywhere in it (lazy imports included)."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names.extend(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.append(node.module)
+    return names
+
+
+def test_the_detector_reads_the_generator_only_through_the_contract() -> None:
+    offenders = []
+    for path in sorted((ROOT / "togcrf").rglob("*.py")):
+        if "robot" in path.relative_to(ROOT / "togcrf").parts:
+            continue  # the robot experiment runs the generator's physics and renderer (docs/architecture.md)
+        offenders += [f"{path.relative_to(ROOT)}: {name}" for name in imported_modules(path)
+                      if name.split(".")[0] == "osgd" and not name.startswith("osgd.contract")]
+    assert not offenders, "togcrf imports osgd outside osgd.contract:\n" + "\n".join(offenders)
+
+
+def test_the_contract_imports_only_numpy_pyarrow_and_opencv() -> None:
+    offenders = []
+    for path in sorted((ROOT / "osgd" / "contract").glob("*.py")):
+        for name in imported_modules(path):
+            top = name.split(".")[0]
+            allowed = (top in sys.stdlib_module_names or top in CONTRACT_DEPENDENCIES or top == "__future__"
+                       or name.startswith("osgd.contract"))
+            if not allowed:
+                offenders.append(f"{path.relative_to(ROOT)}: {name}")
+    assert not offenders, "\n".join(offenders)
+
+
+def test_importing_the_contract_loads_nothing_of_the_generator() -> None:
+    code = ("import sys, osgd.contract.samples, osgd.contract.shards, osgd.contract.schemas, "
+            "osgd.contract.taxonomy, osgd.contract.encoding; print('\\n'.join(sorted(sys.modules)))")
+    modules = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True,
+                             cwd=ROOT).stdout.split()
+    generator = [name for name in modules if name.startswith("osgd.") and not name.startswith("osgd.contract")]
+    heavy = [name for name in modules if name.split(".")[0] in {"torch", "trimesh", "pybullet", "scipy", "coacd"}]
+    assert not generator and not heavy, (generator, heavy)
+
+
+def write_foreign_vocabulary(path: Path, vocabulary: dict[str, list[str]]) -> None:
+    """Rewrite a samples shard as a build with another taxonomy would have written it (checksum file included)."""
+    table = pq.read_table(path)
+    metadata = dict(table.schema.metadata)
+    metadata[b"osgd.vocabulary"] = json.dumps(vocabulary).encode()
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+    checksum = path.with_suffix(".sha256")
+    record = json.loads(checksum.read_text())
+    record["sha256"] = file_sha256(path)
+    checksum.write_text(canonical_json(record) + "\n")
+
+
+def another_vocabulary() -> dict[str, list[str]]:
+    """Today's vocabulary with two task labels swapped: the same size, another meaning."""
+    tasks = list(VOCABULARY["tasks"])
+    tasks[1], tasks[2] = tasks[2], tasks[1]
+    return {"categories": list(VOCABULARY["categories"]), "tasks": tasks}
+
+
+@pytest.fixture
+def samples_dir(tmp_path: Path) -> Path:
+    write_synthetic_samples(ShardStore(tmp_path / "data"), 12, test_every=4)
+    return tmp_path / "data"
+
+
+def test_samples_shards_record_their_vocabulary(samples_dir: Path) -> None:
+    shards = sample_shards(samples_dir, "synthetic")
+    assert len(shards) == 2
+    expected = {field: list(names) for field, names in VOCABULARY.items()}
+    assert [shard_vocabulary(path) for path in shards] == [expected, expected]
+    write_foreign_vocabulary(shards[1], another_vocabulary())
+    assert shard_vocabulary(shards[1]) == another_vocabulary()
+    with pytest.raises(ValueError, match=f"{shards[1].name}.*another vocabulary than.*{shards[0].name}"):
+        samples_vocabulary(shards)
+
+
+def test_training_refuses_data_of_another_vocabulary(samples_dir: Path, tmp_path: Path) -> None:
+    for path in sample_shards(samples_dir, "synthetic"):
+        write_foreign_vocabulary(path, another_vocabulary())
+    config = TrainConfig(data=str(samples_dir), out=str(tmp_path / "run"), pipeline="synthetic", model="tog",
+                         backbone="resnet18", epochs=1, batch_size=2, max_samples=2, device="cpu", amp=False)
+    expected = r"samples is labelled with another vocabulary than the model of this code .*tasks \['no task', 'screw'"
+    with pytest.raises(ValueError, match=expected):
+        train(config)
+
+
+def test_a_checkpoint_of_another_vocabulary_is_refused(samples_dir: Path, tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    train(TrainConfig(data=str(samples_dir), out=str(run_dir), pipeline="synthetic", model="tog",
+                      backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1,
+                      device="cpu", amp=False, model_options={"detections_per_image": 5, "rpn_post_nms_test": 50}))
+    # what a training run saves loads without unpickling code, vocabulary, schema and scaler included
+    checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    assert checkpoint["vocabulary"] == {field: list(names) for field, names in VOCABULARY.items()}
+    assert {"scaler", "schema_version", "optimizer", "scheduler"} <= set(checkpoint)
+    arguments = ["eval", str(run_dir / "checkpoint.pt"), "--data", str(samples_dir), "--pipeline", "synthetic",
+                 "--speed-images", "0", "--out", str(tmp_path / "eval.json")]
+    assert CliRunner().invoke(app, arguments).exit_code == 0
+
+    foreign = tmp_path / "foreign.pt"
+    state = {key: value for key, value in checkpoint.items() if key not in ("vocabulary", "schema_version")}
+    save_checkpoint(foreign, state, another_vocabulary())
+    assert read_checkpoint(foreign)["vocabulary"] == another_vocabulary()
+    arguments[1] = str(foreign)
+    result = CliRunner().invoke(app, arguments)
+    assert result.exit_code == 1
+    assert str(foreign) in result.output and f"{samples_dir}/samples" in result.output
+    assert "tasks ['no task', 'cut', 'screw'" in result.output  # the data's, then the checkpoint's
+    assert "against ['no task', 'screw', 'cut'" in result.output
+
+
+def test_a_corrupt_shard_is_reported_not_dropped_silently(samples_dir: Path,
+                                                         caplog: pytest.LogCaptureFixture) -> None:
+    shards = sample_shards(samples_dir, "synthetic")
+    shards[0].write_bytes(shards[0].read_bytes()[:-100])
+    with caplog.at_level(logging.WARNING, logger="osgd.contract.samples"):
+        assert sample_shards(samples_dir, "synthetic") == shards[1:]
+    assert any(str(shards[0]) in record.getMessage() and "checksum" in record.getMessage()
+               for record in caplog.records), caplog.text
+
+
+#: ``togcrf train`` options whose names differ from their TrainConfig field.
+CLI_NAMES = {"lr_decay_epoch": "lr_decay_epochs", "time_budget": "time_budget_minutes", "option": "model_options"}
+
+
+def test_every_training_option_is_reachable_with_the_configs_default() -> None:
+    cli = typer.Typer()
+    train_module.register(cli)
+    parameters = inspect.signature(cli.registered_commands[0].callback).parameters
+    fields = {CLI_NAMES.get(name, name): parameter.default for name, parameter in parameters.items()}
+    defaults = TrainConfig(data="", out="")
+    missing = [name for name in TrainConfig.__dataclass_fields__ if name not in fields]
+    assert not missing, f"TrainConfig fields without a togcrf train option: {missing}"
+    differing = {name: (fields[name], getattr(defaults, name)) for name in fields
+                 if name not in ("data", "out", *CLI_NAMES.values(), "init")
+                 and fields[name] != getattr(defaults, name)}
+    assert not differing, differing

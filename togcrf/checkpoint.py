@@ -1,0 +1,151 @@
+"""Checkpoints: what a training run saves, and how every command loads it.
+
+``RUN_DIR/checkpoint.pt`` is a dict of tensors and plain values, loaded with
+``torch.load(weights_only=True)`` (no pickled code runs):
+
+- ``model``, ``optimizer``, ``scheduler``, ``scaler``: state dicts (the
+  scaler's is empty without float16 mixed precision); ``--resume`` restores
+  all four;
+- ``config``: the training options (``togcrf.train.TrainConfig`` as a dict,
+  model options filled in);
+- ``epoch``: the last epoch trained (0-based); ``trained_seconds``,
+  ``stopped_by_budget``: the time budget's state;
+- ``data``: what the run trained on (data dir, pipeline, split, shard keys);
+- ``vocabulary``: the categories and task labels the model's outputs are
+  indexed by, and ``schema_version``: the samples schema it read
+  (:mod:`osgd.contract`). Checkpoints written before these were recorded
+  (2026-11) read as today's vocabulary.
+
+A model refuses data labelled with another vocabulary
+(:func:`check_vocabulary`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from osgd.contract.schemas import SCHEMA_VERSION
+from osgd.contract.taxonomy import VOCABULARY, vocabulary_difference
+
+logger = logging.getLogger(__name__)
+
+#: The file name of a run dir's checkpoint.
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+def current_vocabulary() -> dict[str, list[str]]:
+    """The vocabulary of this code (:data:`osgd.contract.taxonomy.VOCABULARY`) as JSON lists."""
+    return {field: list(names) for field, names in VOCABULARY.items()}
+
+
+def checkpoint_path(path: str | Path) -> Path:
+    """``path`` itself, or ``path/checkpoint.pt`` when ``path`` is a run dir."""
+    path = Path(path)
+    return path / CHECKPOINT_FILE if path.is_dir() else path
+
+
+def save_checkpoint(path: Path, state: Mapping[str, Any], vocabulary: Mapping[str, Sequence[str]]) -> None:
+    """Write a checkpoint atomically (a crash leaves the previous one whole).
+
+    Parameters
+    ----------
+    path : path
+        The file to write.
+    state : mapping
+        ``model``, ``optimizer``, ``scheduler``, ``scaler``, ``config``,
+        ``epoch``, ``data``, ``trained_seconds``, ``stopped_by_budget``.
+    vocabulary : mapping
+        ``{"categories": [...], "tasks": [...]}`` of the data trained on.
+    """
+    document = {**state, "vocabulary": {field: list(names) for field, names in vocabulary.items()},
+                "schema_version": SCHEMA_VERSION}
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    torch.save(document, temporary)
+    os.replace(temporary, path)
+
+
+def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict[str, Any]:
+    """The checkpoint's dict, with ``vocabulary`` filled in for old checkpoints.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Not a togcrf checkpoint (unreadable, or without ``model`` and ``config``).
+    """
+    path = checkpoint_path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no checkpoint")
+    try:
+        checkpoint = torch.load(path, map_location=device, weights_only=True)
+    except (RuntimeError, ValueError, EOFError, OSError) as error:
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ValueError(f"{path}: not a readable togcrf checkpoint ({first})") from error
+    if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
+        raise ValueError(f"{path}: not a togcrf checkpoint (needs 'model' and 'config')")
+    checkpoint.setdefault("vocabulary", current_vocabulary())
+    checkpoint.setdefault("schema_version", SCHEMA_VERSION)
+    return checkpoint
+
+
+def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[torch.nn.Module, dict[str, Any]]:
+    """The model of a checkpoint (eval mode, on ``device``) and its training config.
+
+    Parameters
+    ----------
+    path : path
+        ``RUN_DIR/checkpoint.pt`` (or a run dir).
+    device : str
+
+    Returns
+    -------
+    model, config : torch.nn.Module, dict
+        ``config`` is the stored training config plus ``"epoch"``, ``"data"``
+        and ``"vocabulary"``.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing file, or not a togcrf checkpoint.
+    """
+    from togcrf.model import build_model  # noqa: PLC0415 - the model module imports torchvision
+
+    checkpoint = read_checkpoint(path, device)
+    config = dict(checkpoint["config"])
+    model = build_model(config["model"], config["backbone"], **config.get("model_options", {}))
+    model.load_state_dict(checkpoint["model"])
+    model.to(device).eval()
+    config["epoch"] = checkpoint.get("epoch")
+    config["data"] = checkpoint.get("data")
+    config["vocabulary"] = checkpoint["vocabulary"]
+    return model, config
+
+
+def check_vocabulary(model_vocabulary: Mapping[str, Sequence[str]], data_vocabulary: Mapping[str, Sequence[str]],
+                     model_source: str, data_source: str) -> None:
+    """Refuse data labelled with another vocabulary than the model's.
+
+    Parameters
+    ----------
+    model_vocabulary, data_vocabulary : mapping
+        ``{"categories": [...], "tasks": [...]}``.
+    model_source, data_source : str
+        What each came from (a checkpoint path, a data dir), for the message.
+
+    Raises
+    ------
+    ValueError
+        Naming both sources and the first field that differs.
+    """
+    difference = vocabulary_difference(data_vocabulary, model_vocabulary)
+    if difference is not None:
+        raise ValueError(f"{data_source} is labelled with another vocabulary than {model_source}: {difference} "
+                         "(the data's against the model's); use data built with the model's vocabulary, or train a "
+                         "model on this data")
