@@ -5,13 +5,29 @@ three-tool scene at the Kinect v2 resolution, 512 x 424), samples per second
 for the whole stage (render, noise, boxes, grasp filters, PNG encoding) on
 the test fixtures, and peak memory.
 
+With ``--osgd-models DIR`` (the paper authors' models, e.g.
+../shared/osgd-models) it also builds a small pipeline of those models
+(``--per-category`` models of each category, ``--scenes`` piles; kept in
+``--data-dir`` for the next run) and times the samples stage on its piles,
+each in a fresh process of one core, in the same run: the stage as it was
+before issue #22 (commit ``--before``, unpacked from git, with EGL, the
+renderer ``auto`` picked here then) against today's with EGL and with the
+embree renderer, each after a warm-up item (a worker builds many items);
+then where today's path spends its time.
+
     python benchmarks/bench_render.py [--frames 20] [--samples 12]
+    python benchmarks/bench_render.py --osgd-models ../shared/osgd-models [--per-category 2] [--scenes 75]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import json
+import os
+import pstats
 import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -25,8 +41,9 @@ from helpers import fixture_models
 from test_samples_fixtures import scene_row, write_fixture_inputs
 
 from osgd.camera import KINECT_V2
+from osgd.pipeline import load_pipeline, plan_pipeline
 from osgd.samples.renderer import RenderObject, available_backends, make_renderer
-from osgd.samples.stage import SamplesStage, SamplesStageParams
+from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload
 from osgd.samples.viewpoint import draw_camera_pose
 from osgd.stage import WorkItem
 from osgd.store import ShardStore
@@ -67,7 +84,7 @@ def bench_stage(samples: int, renderer: str) -> None:
         store = ShardStore(folder)
         keys = write_fixture_inputs(store, scenes)
         params = SamplesStageParams(renderer=renderer)
-        item = WorkItem("bench", {"params": params.key_dict(), "seed": 0, "scenes_item": "bench"},
+        item = WorkItem("bench", sample_payload(params.key_dict(), 0, "bench"),
                         {table: tuple(values) for table, values in keys.items()})
         stage = SamplesStage()
         stage.build(WorkItem("warm", item.payload, item.inputs), store)  # renderer start-up, imports
@@ -79,14 +96,122 @@ def bench_stage(samples: int, renderer: str) -> None:
           f"{grasps / samples:.1f} grasps/sample, one process)")
 
 
+ROOT = Path(__file__).resolve().parents[1]
+
+#: Functions whose cumulative time the profile of today's path reports, by label.
+PROFILED = {
+    "read and decode models": "model_rows",
+    "read grasps and checks": "load_stable_grasps",
+    "render (depth + mask)": "render",
+    "silhouettes (visible fraction)": "count",
+    "gripper-collision pile (bodies)": "create_object_body",
+    "gripper-collision queries": "collides",
+    "grasp suppression (NMS)": "suppress",
+    "noise": "add_noise",
+    "PNG encoding": "encode_depth",
+}
+
+
+def osgd_pipeline(models_dir: Path, data_dir: Path, per_category: int, scenes: int, workers: int) -> list[str]:
+    """Build models, grasps, checks and scenes of a subset of the authors' models; the config overrides."""
+    subset = data_dir / "osgd-models-subset"
+    subset.mkdir(parents=True, exist_ok=True)
+    per_seen: dict[str, int] = {}
+    for folder in sorted(path for path in models_dir.iterdir() if (path / "model").is_dir()):
+        category = folder.name.rsplit("_", 1)[0]
+        if per_seen.get(category, 0) < per_category:
+            per_seen[category] = per_seen.get(category, 0) + 1
+            link = subset / folder.name
+            if not link.exists():
+                link.symlink_to(folder.resolve(), target_is_directory=True)
+    overrides = [f"models.osgd_dir={subset}", f"scenes.count={scenes}"]
+    for command in ("annotate", "check", "stack"):
+        arguments = [sys.executable, "-m", "osgd", "--data-dir", str(data_dir), "--workers", str(workers), command,
+                     "-c", str(ROOT / "pipelines" / "osgd.toml")]
+        for override in overrides:
+            arguments += ["-s", override]
+        print(f"  osgd {command} ({sum(per_seen.values())} models, {scenes} scenes) ...", flush=True)
+        result = subprocess.run(arguments, capture_output=True, text=True, check=False,
+                                env={**os.environ, "PYTHONHASHSEED": "0"})
+        if result.returncode:
+            raise SystemExit(f"osgd {command} failed:\n{result.stdout}{result.stderr}")
+    return overrides
+
+
+#: The commit before issue #22's changes to the samples stage: the "before" of the comparison.
+BEFORE_ISSUE_22 = "ed5ac77"
+
+
+def time_items(source: Path, data_dir: Path, overrides: list[str], items: int) -> float:
+    """Seconds per sample of the samples stage of the osgd checkout at ``source``, in a fresh process."""
+    arguments = [sys.executable, str(ROOT / "benchmarks" / "time_samples_items.py"), str(data_dir),
+                 str(ROOT / "pipelines" / "osgd.toml"), "--items", str(items)]
+    for override in overrides:
+        arguments += ["-s", override]
+    environment = {**os.environ, "PYTHONPATH": str(source), "PYTHONHASHSEED": "0"}
+    result = subprocess.run(arguments, check=True, capture_output=True, text=True, env=environment, cwd=source)
+    return float(json.loads(result.stdout.strip().splitlines()[-1])["seconds_per_sample"])
+
+
+def checkout(ref: str, folder: Path) -> Path:
+    """The ``osgd`` package of commit ``ref``, unpacked under ``folder``."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", ref, "osgd"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    return folder
+
+
+def profile_today(data_dir: Path, overrides: list[str], items: int) -> None:
+    """Where today's samples stage spends its time, in this process (cProfile, after a warm-up item)."""
+    config = load_pipeline(ROOT / "pipelines" / "osgd.toml", overrides)
+    planned = [shard.item for shard in plan_pipeline(config)["samples"]][:items]
+    store, stage, profile = ShardStore(data_dir), SamplesStage(), cProfile.Profile()
+    stage.build(planned[0], store)
+    profile.enable()
+    for item in planned[1:]:
+        stage.build(item, store)
+    profile.disable()
+    stats = pstats.Stats(profile).stats
+    total = sum(entry[2] for entry in stats.values())  # the own time of every function: the whole
+    print("  where today's path spends its time (cumulative, nested calls overlap):")
+    for label, name in PROFILED.items():
+        seconds = sum(entry[3] for (_, _, function), entry in stats.items() if function == name)
+        print(f"    {label:34s} {100 * seconds / total:5.1f} %")
+
+
+def bench_osgd(models_dir: Path, data_dir: Path, per_category: int, scenes: int, workers: int, before: str) -> None:
+    print(f"samples stage on the authors' models ({models_dir}), data in {data_dir}, one process per line:")
+    overrides = osgd_pipeline(models_dir, data_dir, per_category, scenes, workers)
+    items = max(2, (scenes + 24) // 25)
+    with tempfile.TemporaryDirectory() as folder:
+        old = checkout(before, Path(folder))
+        baseline = time_items(old, data_dir, [*overrides, "samples.renderer=egl"], items)
+        print(f"  {before} (before issue #22), egl: {baseline * 1000:6.0f} ms/sample ({1 / baseline:5.2f} samples/s)")
+        for renderer in ("egl", "embree"):
+            seconds = time_items(ROOT, data_dir, [*overrides, f"samples.renderer={renderer}"], items)
+            print(f"  today, {renderer:6s}: {seconds * 1000:6.0f} ms/sample ({1 / seconds:5.2f} samples/s), "
+                  f"{baseline / seconds:.2f}x")
+    profile_today(data_dir, overrides, items)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--samples", type=int, default=12)
+    parser.add_argument("--osgd-models", type=Path, default=None, help="the authors' models (OSGD layout)")
+    parser.add_argument("--data-dir", type=Path, default=ROOT / ".bench" / "osgd-render",
+                        help="where the authors' models' pipeline is built and kept")
+    parser.add_argument("--per-category", type=int, default=2, help="authors' models per category")
+    parser.add_argument("--scenes", type=int, default=75, help="piles of the authors' models (25 per item)")
+    parser.add_argument("--workers", type=int, default=2, help="workers that build the authors' pipeline")
+    parser.add_argument("--before", default=BEFORE_ISSUE_22, help="the commit to compare today's samples stage with")
     arguments = parser.parse_args()
     bench_backends(arguments.frames)
     for renderer in available_backends():
         bench_stage(arguments.samples, renderer)
+    if arguments.osgd_models is not None:
+        bench_osgd(arguments.osgd_models, arguments.data_dir, arguments.per_category, arguments.scenes,
+                   arguments.workers, arguments.before)
     own, children = peak_memory_mib()
     print(f"peak memory: {own:.0f} MiB (this process), {children:.0f} MiB (children: the EGL probe)")
 

@@ -42,7 +42,7 @@ from osgd.pipeline import (
     stage_by_name,
     stages,
 )
-from osgd.progress import LineProgress
+from osgd.progress import LineProgress, format_duration
 from osgd.stage import ItemFailure, StageReport
 from osgd.store import DataDirError, ShardStore, check_data_dir, write_problem
 
@@ -219,6 +219,8 @@ def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...],
         _close(executor)
     for report in reports:
         _print_report(report, store)
+    if len(reports) > 1:
+        _print_stage_times(reports)
     failures = [(report.stage, failure) for report in reports for failure in report.failures]
     _say(f"data dir: {store.root}   manifest: {store.manifest_path(config.pipeline.name)}")
     if failures:
@@ -247,6 +249,40 @@ def _print_report(report: StageReport, store: ShardStore) -> None:
         text = summarize(store, report.records)
         if text:
             _say(text)
+
+
+def stage_time_rows(reports: list[StageReport]) -> list[tuple[str, ...]]:
+    """The stage-time table of a run: header, one row per stage, a total row.
+
+    Rate: items built per second of the stage's wall time and, when every
+    shard was built in this run, the rows (models, grasps, scenes, samples,
+    ...) made per second.
+    """
+    rows = [("stage", "items", "built", "reused", "failed", "rows", "wall time", "share", "rate")]
+    total = sum(report.seconds for report in reports)
+    for report in reports:
+        row_count = sum(record.rows for record in report.records)
+        items = len(report.records) + len(report.failures)
+        rate = "-"
+        if report.built and report.seconds > 0:
+            rate = f"{report.built / report.seconds:.2f} items/s"
+            if not report.reused:
+                rate += f", {row_count / report.seconds:.1f} rows/s"
+        rows.append((report.stage, str(items), str(report.built), str(report.reused), str(len(report.failures)),
+                     str(row_count), format_duration(report.seconds),
+                     f"{100 * report.seconds / total:.0f} %" if total > 0 else "-", rate))
+    rows.append(("total", "", "", "", "", "", format_duration(total), "", ""))
+    return rows
+
+
+def _print_stage_times(reports: list[StageReport]) -> None:
+    rows = stage_time_rows(reports)
+    widths = [max(len(row[column]) for row in rows) for column in range(len(rows[0]))]
+    _say("stage times:", style="bold")
+    for row in rows:
+        cells = [cell.ljust(width) if column == 0 else cell.rjust(width)
+                 for column, (cell, width) in enumerate(zip(row[:-1], widths, strict=False))]
+        _say("  " + "  ".join(cells) + "  " + row[-1])
 
 
 def _print_failures(failures: list[tuple[str, ItemFailure]]) -> None:

@@ -23,6 +23,7 @@ import abc
 import dataclasses
 import importlib
 import logging
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -196,6 +197,8 @@ class StageReport:
         Notes per item id, from builds now or earlier.
     warnings : dict of str to list of str
         Warnings per item id from builds now (:attr:`BuildResult.warnings`).
+    seconds : float
+        Wall time of the stage's run (checking what is done, building the rest), s.
     """
 
     stage: str
@@ -206,6 +209,7 @@ class StageReport:
     failures: list[ItemFailure] = field(default_factory=list)
     notes: dict[str, list[str]] = field(default_factory=dict)
     warnings: dict[str, list[str]] = field(default_factory=dict)
+    seconds: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -310,6 +314,7 @@ def run_stage(
     -------
     StageReport
     """
+    started = time.perf_counter()
     executor = executor or SerialExecutor()
     report = StageReport(stage.name)
     if force:
@@ -352,6 +357,7 @@ def run_stage(
             on_item(shard.item.item_id, "built" if outcome.built_here else "reused")
 
     report.records = [done[shard.key] for shard in shards if shard.key in done]
+    report.seconds = time.perf_counter() - started
     return report
 
 

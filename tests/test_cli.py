@@ -188,3 +188,22 @@ def test_a_models_folder_that_is_not_there_is_one_line(tmp_path: Path) -> None:
     ]))
     assert line == (f"error: stage models cannot plan its work: {tmp_path / 'nope'}: no such folder; "
                     "set [models] osgd_dir to a folder in the OSGD layout")
+
+
+def test_the_run_summary_has_each_stages_wall_time_share_and_rate() -> None:
+    from osgd.cli import stage_time_rows  # noqa: PLC0415
+    from osgd.contract.shards import ShardRecord  # noqa: PLC0415
+    from osgd.stage import StageReport  # noqa: PLC0415
+
+    def record(rows: int) -> ShardRecord:
+        return ShardRecord("scenes", "0" * 64, "item", rows, "0" * 64)
+
+    reports = [StageReport("scenes", [record(25)] * 4, reused=0, built=4, seconds=30.0),
+               StageReport("samples", [record(25)] * 4, reused=3, built=1, seconds=90.0)]
+    header, scenes, samples, total = stage_time_rows(reports)
+    assert header[0] == "stage" and "wall time" in header and "rate" in header
+    assert scenes[:7] == ("scenes", "4", "4", "0", "0", "100", "30s")
+    assert scenes[7] == "25 %" and samples[7] == "75 %"
+    assert scenes[8] == "0.13 items/s, 3.3 rows/s"
+    assert samples[8] == "0.01 items/s"  # with shards reused, rows per second would mix in their rows
+    assert total[0] == "total" and total[6] == "2m00s"

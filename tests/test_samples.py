@@ -12,7 +12,7 @@ from test_samples_fixtures import TOP_DOWN_ACROSS_Y, grasp_row, scene_row, write
 
 from osgd.camera import KINECT_V2
 from osgd.contract.samples import decode_row
-from osgd.samples.boxes import silhouette_pixels, visible_boxes
+from osgd.samples.boxes import SilhouetteCounter, silhouette_pixels, visible_boxes
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.pictures import show_sample
 from osgd.samples.projection import (
@@ -147,8 +147,41 @@ def test_silhouette_of_an_unoccluded_object_equals_its_visible_pixels(fixture_sc
     objects, pose = fixture_scene
     rendering = make_renderer("embree").render(objects, KINECT_V2, pose)
     _, pixels = visible_boxes(rendering.mask, len(objects))
+    counter = SilhouetteCounter()
     for index, obj in enumerate(objects):
         assert silhouette_pixels(obj, KINECT_V2, pose) == pixels[index]
+        assert counter.count(obj, KINECT_V2, pose) == pixels[index]
+    assert rendering.silhouettes.tolist() == pixels.tolist()  # counted in the render's own casts
+
+
+def test_the_embree_renderers_silhouettes_count_hidden_and_cut_off_pixels_too(fixture_scene):
+    """An object half out of the image and one under another: their silhouettes are still whole."""
+    objects, pose = fixture_scene
+    window = KINECT_V2.cropped(180, 120, 160, 160)  # cuts through the pile
+    rendering = make_renderer("embree").render(objects, window, pose)
+    _, visible = visible_boxes(rendering.mask, len(objects))
+    whole = [silhouette_pixels(obj, window, pose) for obj in objects]
+    assert rendering.silhouettes.tolist() == whole
+    assert np.all(visible <= rendering.silhouettes) and np.any(visible < rendering.silhouettes)
+
+
+def test_the_silhouette_counter_reuses_one_scene_per_mesh_and_agrees_with_a_fresh_scene(fixture_scene):
+    """Rays turned into the mesh's frame hit what world rays hit on the posed mesh, pose after pose."""
+    objects, _ = fixture_scene
+    counter = SilhouetteCounter(capacity=2)
+    rng = np.random.default_rng(7)
+    counts = []
+    for _ in range(6):
+        pose = draw_camera_pose(rng, np.zeros(3), 0.75, 0.17, 0.26)
+        for obj in objects:
+            turned = RenderObject(obj.key, obj.vertices, obj.faces, obj.position + rng.uniform(-0.05, 0.05, 3),
+                                  Rotation.random(random_state=rng).as_quat())
+            counts.append((counter.count(turned, KINECT_V2, pose), silhouette_pixels(turned, KINECT_V2, pose)))
+    cached, fresh = np.array(counts).T
+    assert fresh.min() > 50
+    # float32 rays in another frame may flip a pixel centre that grazes an edge, no more
+    assert np.all(np.abs(cached - fresh) <= np.maximum(2, 0.002 * fresh)), counts
+    assert len(counter.scenes) == 2  # capacity: the least recently used mesh was dropped
 
 
 # -- noise --------------------------------------------------------------------------
@@ -391,3 +424,36 @@ def test_grasp_row_fixture_is_self_consistent():
     # Guards the hand-made grasps: contacts straddle the centre along the closing axis.
     row = grasp_row("m", 0, "cut", [0.0, 0.0, 0.0], TOP_DOWN_ACROSS_Y, 0.035, 0.0125)
     assert np.allclose(row["contact_a"], [0.0, -0.0125, 0.0]) and np.allclose(row["contact_b"], [0.0, 0.0125, 0.0])
+
+
+# -- gripper collisions -----------------------------------------------------------------
+
+def test_a_worker_world_reused_across_piles_judges_grasps_as_a_fresh_world_does() -> None:
+    """Bodies moved from pile to pile (copies of one model included) collide as freshly loaded ones."""
+    from osgd.gripper import PANDA  # noqa: PLC0415
+    from osgd.physics import create_object_body, physics_client  # noqa: PLC0415
+    from osgd.samples.collision import PileCollider, PileWorld, pile_collider  # noqa: PLC0415
+
+    hammer, screwdriver, block = fixture_models()
+    models = {row["model_id"]: row for row in (hammer, screwdriver, block)}
+    rng = np.random.default_rng(11)
+    reused = PileWorld()
+    decisions = {"reused": [], "fresh": []}
+    for pile in range(4):
+        chosen = [hammer, screwdriver, block, hammer][: 2 + pile % 3]  # the hammer twice in the last piles
+        scene = scene_row(pile, [(model, rng.uniform(-0.1, 0.1, 2).tolist(), float(rng.uniform(0, 6)))
+                                 for model in chosen])
+        centres = np.array([obj["position"] for obj in scene["objects"]])
+        poses = [(int(rng.integers(len(centres))), centres[rng.integers(len(centres))] + rng.normal(0, 0.02, 3),
+                  Rotation.random(random_state=rng).as_matrix(), float(rng.uniform(0.01, 0.08))) for _ in range(40)]
+        with pile_collider(models, scene["objects"], PANDA, 0.001, world=reused) as collider:
+            decisions["reused"] += [collider.collides(*pose) for pose in poses]
+        with physics_client(gravity=0.0) as client:  # the pile loaded anew, as before issue #22
+            bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
+                                         np.asarray(obj["quaternion"]), mass=0.0).body_id
+                      for obj in scene["objects"]]
+            collider = PileCollider(client, bodies, PANDA, 0.001)
+            decisions["fresh"] += [collider.collides(*pose) for pose in poses]
+    reused.close()
+    assert decisions["reused"] == decisions["fresh"]
+    assert 0.1 < np.mean(decisions["fresh"]) < 0.9  # both outcomes are exercised

@@ -10,7 +10,9 @@ The visible fraction is the object's visible pixels over the pixels it
 would cover alone in front of the camera: its silhouette, found by casting
 one ray per pixel centre at the object alone (embree, exact), over the
 object's whole projection, also the part outside the image, so an object
-cut by the image border counts as partly hidden.
+cut by the image border counts as partly hidden. :class:`SilhouetteCounter`
+builds each mesh's embree scene once per worker and turns the rays into the
+mesh's frame.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from osgd.camera import CameraIntrinsics
-from osgd.samples.renderer import RenderObject
+from osgd.samples.renderer import EMBREE_SCENES_KEPT, EmbreeScenes, RenderObject, cast_object
 from osgd.samples.viewpoint import CameraPose
 
 
@@ -47,23 +49,50 @@ def visible_boxes(mask: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]
     return boxes, pixels
 
 
-def silhouette_pixels(obj: RenderObject, intrinsics: CameraIntrinsics, pose: CameraPose) -> int:
-    """Pixel centres whose ray hits the object when it is alone.
+class SilhouetteCounter:
+    """Counts the pixels an object would cover alone, one embree scene per mesh, reused.
 
-    Counts pixels of the unbounded image plane (the projection of the
-    object may extend past the image).
+    For the renderers that do not count them in their own pass (egl, tiny;
+    the embree renderer's :attr:`Rendering.silhouettes` come from the same
+    casts). The rays are turned into the mesh's frame and cast at its scene
+    in :class:`osgd.samples.renderer.EmbreeScenes`, built once per mesh.
 
     Parameters
     ----------
-    obj : RenderObject
-    intrinsics : CameraIntrinsics
-    pose : CameraPose
+    capacity : int
+        Scenes kept, least recently used dropped first.
+    """
 
-    Returns
-    -------
-    int
-        0 if any part of the object is behind the camera's image plane (no
-        finite projection) or nothing is hit.
+    def __init__(self, capacity: int = EMBREE_SCENES_KEPT) -> None:
+        self.scenes = EmbreeScenes(capacity)
+
+    def count(self, obj: RenderObject, intrinsics: CameraIntrinsics, pose: CameraPose) -> int:
+        """Pixel centres whose ray hits the object when it is alone.
+
+        Counts pixels of the unbounded image plane (the projection of the
+        object may extend past the image).
+
+        Parameters
+        ----------
+        obj : RenderObject
+        intrinsics : CameraIntrinsics
+        pose : CameraPose
+
+        Returns
+        -------
+        int
+            0 if any part of the object is behind the camera's image plane (no
+            finite projection) or nothing is hit.
+        """
+        hits = cast_object(self.scenes, obj, intrinsics, pose)
+        return 0 if hits is None else int(np.count_nonzero(hits.hit))
+
+
+def silhouette_pixels(obj: RenderObject, intrinsics: CameraIntrinsics, pose: CameraPose) -> int:
+    """:meth:`SilhouetteCounter.count` the way it was done before issue #22: a new scene of the posed mesh.
+
+    Kept as the reference the counter is tested and benchmarked against; the
+    samples stage does not use it.
     """
     from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
 

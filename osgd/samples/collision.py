@@ -8,10 +8,20 @@ box comes closer than ``-tolerance`` (i.e. penetrates by more than the
 tolerance) to an object other than the one grasped. The floor is not
 tested: the finger boxes reach ``finger_depth / 2`` past the grasp centre,
 so a grasp on a thin tool lying on the table would always touch it.
+
+Each worker process keeps one such world (:class:`PileWorld`): a static body
+per model and copy is made the first time a pile needs it and moved into
+place for every later pile, and the gripper bodies are kept per opening, so
+a sample no longer loads its pile's collision compounds anew (issue #22).
+The world is never stepped: only the bodies of the pile at hand are ever
+asked about, so bodies left where an earlier pile put them change nothing.
 """
 
 from __future__ import annotations
 
+import atexit
+import functools
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -20,7 +30,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from osgd.gripper import Gripper
-from osgd.physics import create_object_body, physics_client, pybullet_module
+from osgd.physics import ObjectBody, create_object_body, pybullet_module, set_mesh_pose
+from osgd.raycast import rotate_rows
+
+#: How close, m, an object's axis-aligned box must come to the gripper's for pybullet to be asked: well over
+#: the penetration tolerance and pybullet's collision margins (about 1 mm on convex hulls, docs/checks.md).
+BOUNDS_MARGIN = 0.01
+
+_UNIT_CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
 
 
 class PileCollider:
@@ -37,16 +54,26 @@ class PileCollider:
     gripper : Gripper
     tolerance : float
         Penetration allowed, metres.
+    gripper_bodies : dict, optional
+        Gripper bodies by (gripper, opening), kept by a :class:`PileWorld`.
+    bounds : (N, 2, 3) float, optional
+        Each object's axis-aligned box in the world (min, max corner), m: the
+        pybullet query is made only for objects whose box comes within
+        :data:`BOUNDS_MARGIN` of the gripper's, which cannot touch it otherwise.
     """
 
-    def __init__(self, client: int, bodies: list[int], gripper: Gripper, tolerance: float) -> None:
+    def __init__(self, client: int, bodies: list[int], gripper: Gripper, tolerance: float,
+                 gripper_bodies: dict[tuple[Gripper, float], int] | None = None,
+                 bounds: np.ndarray | None = None) -> None:
         self.client = client
         self.bodies = bodies
         self.gripper = gripper
         self.tolerance = tolerance
-        self._grippers: dict[float, int] = {}
+        self._grippers = {} if gripper_bodies is None else gripper_bodies
+        self.bounds = bounds
 
-    def collides(self, object_index: int, position: np.ndarray, rotation: np.ndarray, opening: float) -> bool:
+    def collides(self, object_index: int, position: np.ndarray, rotation: np.ndarray, opening: float,
+                 quaternion: np.ndarray | None = None, near: np.ndarray | None = None) -> bool:
         """Whether the gripper at this pose touches another object.
 
         Parameters
@@ -59,16 +86,24 @@ class PileCollider:
             Gripper frame in the world frame.
         opening : float
             Finger opening, metres.
+        quaternion : (4,) float, optional
+            ``rotation`` as ``(x, y, z, w)``, when the caller has it (:attr:`GraspSet.quaternions`).
+        near : (N,) bool, optional
+            This grasp's row of :meth:`near_objects`, when the caller has it.
         """
         pybullet = pybullet_module()
-        others = [body for index, body in enumerate(self.bodies) if index != object_index]
+        if near is None:
+            near = self.near_objects(np.asarray(position)[None], np.asarray(rotation)[None], np.array([opening]))[0]
+        others = [body for index, body in enumerate(self.bodies) if index != object_index and near[index]]
         if not others:
             return False
+        if quaternion is None:
+            quaternion = Rotation.from_matrix(rotation).as_quat()
         body = self._gripper_body(float(opening))
         pybullet.resetBasePositionAndOrientation(
             body,
             np.asarray(position, dtype=np.float64).tolist(),
-            Rotation.from_matrix(rotation).as_quat().tolist(),
+            np.asarray(quaternion, dtype=np.float64).tolist(),
             physicsClientId=self.client,
         )
         for other in others:
@@ -77,6 +112,32 @@ class PileCollider:
                 return True
         return False
 
+    def near_objects(self, positions: np.ndarray, rotations: np.ndarray, openings: np.ndarray) -> np.ndarray:
+        """Which objects' boxes come within :data:`BOUNDS_MARGIN` of the gripper's, per grasp.
+
+        Parameters
+        ----------
+        positions : (G, 3) float
+        rotations : (G, 3, 3) float
+        openings : (G,) float
+
+        Returns
+        -------
+        (G, N) bool
+            All true without ``bounds``.
+        """
+        if self.bounds is None:
+            return np.ones((len(positions), len(self.bodies)), dtype=bool)
+        corners = np.stack([self._corners(float(opening)) for opening in openings]).reshape(len(openings), -1, 3)
+        world = np.einsum("gij,gkj->gki", np.asarray(rotations, dtype=np.float64), corners)
+        world += np.asarray(positions, dtype=np.float64)[:, None, :]
+        low, high = world.min(axis=1) - BOUNDS_MARGIN, world.max(axis=1) + BOUNDS_MARGIN
+        return np.all((self.bounds[None, :, 0] <= high[:, None]) & (self.bounds[None, :, 1] >= low[:, None]), axis=2)
+
+    def _corners(self, opening: float) -> np.ndarray:
+        """The corners of the gripper's boxes at ``opening``, (24, 3), gripper frame."""
+        return np.concatenate([centre + half * _UNIT_CORNERS for _, centre, half in self.gripper.boxes(opening)])
+
     def _gripper_body(self, opening: float) -> int:
         """A static gripper body per opening, made once and moved about.
 
@@ -84,7 +145,7 @@ class PileCollider:
         so bodies are kept for the life of the world.)
         """
         pybullet = pybullet_module()
-        body = self._grippers.get(opening)
+        body = self._grippers.get((self.gripper, opening))
         if body is None:
             boxes = self.gripper.boxes(opening)
             shape = pybullet.createCollisionShapeArray(
@@ -94,8 +155,79 @@ class PileCollider:
                 physicsClientId=self.client,
             )
             body = pybullet.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=shape, physicsClientId=self.client)
-            self._grippers[opening] = body
+            self._grippers[self.gripper, opening] = body
         return body
+
+class PileWorld:
+    """A worker's pybullet world for :class:`PileCollider`: bodies made once, moved from pile to pile.
+
+    Static bodies are kept per model id (equal ids: equal collision
+    compounds, as :func:`osgd.physics.create_object_body` assumes for its
+    compound files), as many per model as a pile has copies of it; gripper
+    bodies per gripper and opening. Use :func:`worker_pile_world`.
+    """
+
+    def __init__(self) -> None:
+        self.client: int | None = None
+        self._bodies: dict[str, list[ObjectBody]] = {}
+        self.gripper_bodies: dict[tuple[Gripper, float], int] = {}
+        self._hull_points: dict[str, np.ndarray] = {}
+
+    def _connected(self) -> int:
+        pybullet = pybullet_module()
+        if self.client is None or not pybullet.isConnected(self.client):
+            self.client = pybullet.connect(pybullet.DIRECT)
+            self._bodies.clear()
+            self.gripper_bodies.clear()
+        return self.client
+
+    def close(self) -> None:
+        """Disconnect the world (a later pile connects a new one)."""
+        pybullet = pybullet_module()
+        if self.client is not None and pybullet.isConnected(self.client):
+            pybullet.disconnect(self.client)
+        self.client = None
+
+    def bounds(self, models: Mapping[str, Mapping[str, Any]], objects: Sequence[Mapping[str, Any]]) -> np.ndarray:
+        """Each object's axis-aligned box in the world, (N, 2, 3): its convex parts' vertices at its pose."""
+        boxes = np.zeros((len(objects), 2, 3))
+        for index, obj in enumerate(objects):
+            points = self._hull_points.get(obj["model_id"])
+            if points is None:
+                parts = models[obj["model_id"]]["convex_parts"]
+                points = np.concatenate([np.asarray(part["vertices"], dtype=np.float64).reshape(-1, 3)
+                                         for part in parts])
+                self._hull_points[obj["model_id"]] = points
+            rotation = Rotation.from_quat(np.asarray(obj["quaternion"], dtype=np.float64)).as_matrix()
+            world = rotate_rows(points, rotation) + np.asarray(obj["position"], dtype=np.float64)
+            boxes[index] = world.min(axis=0), world.max(axis=0)
+        return boxes
+
+    def place(self, models: Mapping[str, Mapping[str, Any]], objects: Sequence[Mapping[str, Any]]) -> list[int]:
+        """Body ids of the pile's objects, in scene order, each at its scene pose."""
+        client = self._connected()
+        used: Counter[str] = Counter()
+        body_ids = []
+        for obj in objects:
+            model_id = obj["model_id"]
+            copies = self._bodies.setdefault(model_id, [])
+            if used[model_id] == len(copies):
+                copies.append(create_object_body(client, models[model_id], mass=0.0))
+            body = copies[used[model_id]]
+            used[model_id] += 1
+            set_mesh_pose(body, np.asarray(obj["position"], dtype=np.float64),
+                          np.asarray(obj["quaternion"], dtype=np.float64))
+            body_ids.append(body.body_id)
+        return body_ids
+
+
+@functools.cache
+def worker_pile_world() -> PileWorld:
+    """This process's :class:`PileWorld`, disconnected at exit."""
+    world = PileWorld()
+    atexit.register(world.close)
+    return world
+
 
 @contextmanager
 def pile_collider(
@@ -103,8 +235,9 @@ def pile_collider(
     objects: Sequence[Mapping[str, Any]],
     gripper: Gripper,
     tolerance: float,
+    world: PileWorld | None = None,
 ) -> Iterator[PileCollider]:
-    """A :class:`PileCollider` for one scene, its world torn down on exit.
+    """A :class:`PileCollider` for one scene, in this worker's :class:`PileWorld`.
 
     Parameters
     ----------
@@ -114,16 +247,9 @@ def pile_collider(
     gripper : Gripper
     tolerance : float
         Penetration allowed, metres.
+    world : PileWorld, optional
+        Default: :func:`worker_pile_world`.
     """
-    with physics_client(gravity=0.0) as client:
-        bodies = [
-            create_object_body(
-                client,
-                models[obj["model_id"]],
-                np.asarray(obj["position"], dtype=np.float64),
-                np.asarray(obj["quaternion"], dtype=np.float64),
-                mass=0.0,
-            ).body_id
-            for obj in objects
-        ]
-        yield PileCollider(client, bodies, gripper, tolerance)
+    world = world or worker_pile_world()
+    bodies = world.place(models, objects)
+    yield PileCollider(world.client, bodies, gripper, tolerance, world.gripper_bodies, world.bounds(models, objects))

@@ -2,15 +2,18 @@
 
 Backends
 --------
+``embree``
+    An exact CPU ray caster on embreex, used directly (trimesh's wrapper
+    costs 3x more; REFERENCE section 8): one ray per pixel centre of each
+    object's projected box, at the object's mesh in its own frame, whose
+    embree scene is built once per process (:class:`EmbreeScenes`); the
+    nearest hit wins, and the same casts count each object's silhouette.
 ``egl``
     pybullet's EGL plugin (Mesa llvmpipe on a machine without a GPU, the
     real driver where there is one): 22 ms per 640 x 480 frame here, depth
     within 0.03 mm of an exact ray cast (REFERENCE section 8). Loading the
     plugin where no EGL driver exists makes the process exit with no
     exception, so :func:`egl_available` first tries it in a subprocess.
-``embree``
-    An exact CPU ray caster on embreex, used directly (trimesh's wrapper
-    costs 3x more; REFERENCE section 8): one ray per pixel centre.
 ``tiny``
     pybullet's TinyRenderer: no GL needed, silhouettes about a pixel off.
 
@@ -37,10 +40,11 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -53,8 +57,10 @@ from osgd.samples.viewpoint import CameraPose
 
 log = logging.getLogger(__name__)
 
-#: Backend names in the order ``auto`` tries them.
-BACKENDS: tuple[str, ...] = ("egl", "embree", "tiny")
+#: Backend names in the order ``auto`` tries them: the exact ray caster first, since with each mesh's scene
+#: built once per worker it is also the fastest on a CPU (issue #22: 155 against 277 ms per sample of the
+#: authors' models with EGL on Mesa llvmpipe, ``benchmarks/bench_render.py``) and needs no GL driver.
+BACKENDS: tuple[str, ...] = ("embree", "egl", "tiny")
 
 #: Clip planes of the GL backends, metres: wider than the sensor range (the
 #: stage applies that afterwards) so nothing in view is clipped, with the near
@@ -107,6 +113,7 @@ class Rendering:
 
     depth: np.ndarray
     mask: np.ndarray
+    silhouettes: np.ndarray | None = None
 
 
 class Renderer(Protocol):
@@ -151,9 +158,126 @@ def floor_mesh(centre_xy: np.ndarray, half_size: float) -> tuple[np.ndarray, np.
     return vertices, np.array([[0, 1, 2], [0, 2, 3]])
 
 
+#: Embree scenes kept per process by :class:`EmbreeScenes` (each holds a mesh and its BVH, about 100 bytes
+#: per triangle: 64 of the authors' largest meshes take about 300 MB).
+EMBREE_SCENES_KEPT = 64
+
+
+class EmbreeScenes:
+    """Embree scenes of meshes in their own frame, built once per mesh key and reused.
+
+    Building the scene (its BVH) costs about 100 times casting an object's
+    rays at it (an authors' pen of 47k triangles: 150 ms against 1.5 ms), so
+    the ``capacity`` most recently used are kept. Equal
+    :attr:`RenderObject.key` values must mean equal meshes.
+    """
+
+    def __init__(self, capacity: int = EMBREE_SCENES_KEPT) -> None:
+        self.capacity = capacity
+        self._scenes: OrderedDict[str, tuple[Any, np.ndarray]] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._scenes)
+
+    def scene(self, obj: RenderObject) -> tuple[Any, np.ndarray]:
+        """The embree scene of ``obj``'s mesh (mesh frame), and the indices of its convex hull's vertices.
+
+        The hull's vertices bound the mesh's projection exactly (a
+        perspective projection's ``u`` and ``v`` are extreme at a hull
+        vertex), at a fraction of the vertices.
+        """
+        entry = self._scenes.pop(obj.key, None)
+        if entry is None:
+            from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
+
+            vertices = np.asarray(obj.vertices, dtype=np.float64)
+            scene = rtcore_scene.EmbreeScene()
+            mesh_construction.TriangleMesh(scene, vertices.astype(np.float32), np.asarray(obj.faces, dtype=np.int32))
+            entry = scene, _hull_vertex_indices(vertices)
+        self._scenes[obj.key] = entry
+        while len(self._scenes) > self.capacity:
+            self._scenes.popitem(last=False)
+        return entry
+
+
+def _hull_vertex_indices(vertices: np.ndarray) -> np.ndarray:
+    """Indices of the convex hull's vertices; every vertex where the hull is flat or degenerate."""
+    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
+
+    try:
+        return np.sort(ConvexHull(vertices).vertices)
+    except (QhullError, ValueError):
+        return np.arange(len(vertices))
+
+
+@dataclass(frozen=True)
+class ObjectHits:
+    """One object cast alone: a ray per pixel centre of its projection's bounding box.
+
+    Attributes
+    ----------
+    rows, columns : (N,) int64
+        The pixel of each ray; may lie outside the image.
+    hit : (N,) bool
+    depth : (N,) float64
+        Camera-frame z of the hit (the world triangle's plane, float64), 0 where missed.
+    """
+
+    rows: np.ndarray
+    columns: np.ndarray
+    hit: np.ndarray
+    depth: np.ndarray
+
+
+def cast_object(scenes: EmbreeScenes, obj: RenderObject, intrinsics: CameraIntrinsics,
+                pose: CameraPose) -> ObjectHits | None:
+    """Cast a ray through every pixel centre of the object's projected box at the object alone.
+
+    The rays are turned into the mesh's frame (origin ``R^T (c - p)``,
+    direction ``R^T R_c r``) and cast at its cached scene; the depth of a
+    hit is recomputed in float64 on the world triangle (:mod:`osgd.raycast`),
+    so it does not depend on the processor's SIMD.
+
+    Returns
+    -------
+    ObjectHits or None
+        None when a vertex lies behind the camera's image plane (no finite projection).
+    """
+    scene, hull = scenes.scene(obj)
+    rotation = Rotation.from_quat(np.asarray(obj.quaternion, dtype=np.float64)).as_matrix()
+    position = np.asarray(obj.position, dtype=np.float64)
+    vertices = np.asarray(obj.vertices, dtype=np.float64)
+    camera = pose.world_to_camera(rotate_rows(vertices[hull], rotation) + position)
+    if np.any(camera[:, 2] <= 1e-6):
+        return None
+    pixels = intrinsics.project(camera)
+    low = np.floor(pixels.min(axis=0)).astype(np.int64)
+    high = np.ceil(pixels.max(axis=0)).astype(np.int64)
+    rows, columns = np.mgrid[low[1] : high[1] + 1, low[0] : high[0] + 1]
+    rows, columns = rows.reshape(-1), columns.reshape(-1)
+    camera_rays = np.stack([(columns - intrinsics.cx) / intrinsics.fx, (rows - intrinsics.cy) / intrinsics.fy,
+                            np.ones(columns.size)], axis=1)
+    origin = rotate_rows((pose.position - position)[None, :], rotation.T)
+    local = rotate_rows(camera_rays, rotation.T @ pose.rotation)  # camera frame to the mesh's, in one turn
+    hits = scene.run(np.broadcast_to(origin, local.shape).astype(np.float32), local.astype(np.float32), output=1)
+    hit = np.asarray(hits["geomID"]) >= 0
+    depth = np.zeros(len(hit))
+    corners = vertices[np.asarray(obj.faces)[np.asarray(hits["primID"])[hit]]].reshape(-1, 3)
+    triangles = (rotate_rows(corners, rotation) + position).reshape(-1, 3, 3)  # the hit triangles in the world
+    origins = np.broadcast_to(np.asarray(pose.position, dtype=np.float64), (len(triangles), 3))
+    depth[hit] = plane_hit_distances(origins, rotate_rows(camera_rays[hit], pose.rotation), triangles)
+    return ObjectHits(rows, columns, hit, depth)
+
+
 @dataclass
 class EmbreeRenderer:
     """Exact ray casting with embreex: one ray per pixel centre.
+
+    Each object is cast alone over its projected box, at its mesh's scene
+    cached in :class:`EmbreeScenes` (rays turned into the mesh's frame), and
+    the nearest hit per pixel wins; the floor is the plane ``z = 0``. The
+    same casts count the pixels each object covers alone, so the rendering
+    carries its ``silhouettes`` (issue #22: no second cast per object).
 
     Parameters
     ----------
@@ -163,6 +287,7 @@ class EmbreeRenderer:
 
     floor_half_size: float = 5.0
     name: str = field(default="embree", init=False)
+    scenes: EmbreeScenes = field(default_factory=EmbreeScenes, repr=False)
 
     def render(
         self,
@@ -171,39 +296,36 @@ class EmbreeRenderer:
         pose: CameraPose,
         floor: bool = True,
     ) -> Rendering:
-        from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
+        height, width = intrinsics.height, intrinsics.width
+        depth = self._floor_depth(intrinsics, pose) if floor else np.zeros(height * width)
+        mask = np.zeros(height * width, dtype=np.int32)
+        silhouettes = np.zeros(len(objects), dtype=np.int64)
+        for index, obj in enumerate(objects):
+            hits = cast_object(self.scenes, obj, intrinsics, pose)
+            if hits is None:
+                continue
+            silhouettes[index] = np.count_nonzero(hits.hit)
+            inside = hits.hit & (hits.rows >= 0) & (hits.rows < height) & (hits.columns >= 0) & (hits.columns < width)
+            pixel = hits.rows[inside] * width + hits.columns[inside]
+            nearer = (depth[pixel] == 0) | (hits.depth[inside] < depth[pixel])  # than the floor or earlier objects
+            depth[pixel[nearer]] = hits.depth[inside][nearer]
+            mask[pixel[nearer]] = index + 1
+        return Rendering(depth.reshape(height, width), mask.reshape(height, width), silhouettes)
 
-        scene = rtcore_scene.EmbreeScene()
-        # Geometry ids count up from 0 in creation order; geometry_label maps
-        # them to mask values, geometry_triangles to their (F, 3, 3) triangles.
-        geometry_label: list[int] = []
-        geometry_triangles: list[np.ndarray] = []
-        meshes = [(0, *floor_mesh(pose.position[:2], self.floor_half_size))] if floor else []
-        meshes += [(index + 1, obj.world_vertices(), np.asarray(obj.faces)) for index, obj in enumerate(objects)]
-        for label, vertices, faces in meshes:
-            mesh_construction.TriangleMesh(scene, vertices.astype(np.float32), faces.astype(np.int32))
-            geometry_label.append(label)
-            geometry_triangles.append(np.asarray(vertices, dtype=np.float64)[faces])
-        shape = (intrinsics.height, intrinsics.width)
-        if not geometry_label:
-            return Rendering(np.zeros(shape), np.zeros(shape, dtype=np.int32))
+    def _floor_depth(self, intrinsics: CameraIntrinsics, pose: CameraPose) -> np.ndarray:
+        """Depth of the floor square (``z = 0``, centred under the camera) per pixel, 0 where it is not seen.
+
+        A ray ``c + t d`` (``d`` with camera-frame z 1, so ``t`` is the depth)
+        meets the plane at ``t = -c_z / d_z``.
+        """
         directions = rotate_rows(pixel_rays(intrinsics), pose.rotation)
-        origins = np.broadcast_to(np.asarray(pose.position, dtype=np.float64), directions.shape)
-        hits = scene.run(origins.astype(np.float32), directions.astype(np.float32), output=1)
-        geometry = np.asarray(hits["geomID"])
-        hit = geometry >= 0
-        # embree says which triangle; where is computed again in float64
-        # (osgd.raycast), so depth does not depend on the processor's SIMD.
-        offsets = np.cumsum([0] + [len(triangles) for triangles in geometry_triangles])
-        triangles = np.concatenate(geometry_triangles)[offsets[geometry[hit]] + np.asarray(hits["primID"])[hit]]
-        depth = np.zeros(geometry.shape)
-        depth[hit] = plane_hit_distances(origins[hit], directions[hit], triangles)
-        labels = np.asarray(geometry_label, dtype=np.int32)
-        mask = np.where(hit, labels[np.clip(geometry, 0, None)], 0).astype(np.int32)
-        return Rendering(depth.reshape(shape), mask.reshape(shape))
+        height = float(pose.position[2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            distances = -height / directions[:, 2]
+        offsets = distances[:, None] * directions[:, :2]  # from the point under the camera
+        seen = (distances > 0) & np.all(np.abs(offsets) <= self.floor_half_size, axis=1)
+        return np.where(seen, distances, 0.0)
 
-
-# -- pybullet (EGL and TinyRenderer) --------------------------------------------
 
 def write_obj(vertices: np.ndarray, faces: np.ndarray, path: Path) -> Path:
     """Write one triangle mesh (V, 3) float, (F, 3) int as an OBJ file."""

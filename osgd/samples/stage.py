@@ -23,6 +23,7 @@ a scene stays in its split whatever else changes.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import logging
 from collections import Counter
@@ -40,7 +41,8 @@ from osgd.contract.encoding import encode_depth, encode_mask
 from osgd.contract.schemas import SAMPLES
 from osgd.contract.shards import ShardRecord
 from osgd.gripper import PANDA, Gripper
-from osgd.samples.boxes import silhouette_pixels, visible_boxes
+from osgd.models.rows import BODY_COLUMNS, model_rows
+from osgd.samples.boxes import SilhouetteCounter, visible_boxes
 from osgd.samples.collision import PileCollider, pile_collider
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.projection import (
@@ -52,7 +54,7 @@ from osgd.samples.projection import (
     grasp_set_from_rows,
     suppress,
 )
-from osgd.samples.renderer import Renderer, RenderObject, make_renderer
+from osgd.samples.renderer import BACKENDS, Renderer, Rendering, RenderObject, make_renderer
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
 from osgd.store import ShardStore
@@ -88,7 +90,7 @@ class SamplesStageParams(StageParams):
         0.1, ge=0.0, le=1.0, description="Share of scenes in the test split (paper: not stated; 90/10 is ours)."
     )
     renderer: Literal["auto", "egl", "embree", "tiny"] = Field(
-        "auto", description="Rendering backend; auto tries egl, embree, tiny in that order."
+        "auto", description="Rendering backend; auto tries embree, egl, tiny in that order."
     )
     image_width: int = Field(KINECT_V2.width, ge=8, description="Image width, px (Kinect v2 depth: 512).")
     image_height: int = Field(KINECT_V2.height, ge=8, description="Image height, px (Kinect v2 depth: 424).")
@@ -254,7 +256,7 @@ def render_sample(
     depth_clean = np.where(in_range, rendering.depth, 0.0)
     depth = add_noise(depth_clean, rng, params.noise())
 
-    sample_objects = _visible_objects(objects, render_objects, rendering.mask, intrinsics, pose,
+    sample_objects = _visible_objects(objects, render_objects, rendering, intrinsics, pose,
                                       params.min_visible_fraction)
     camera_view = _CameraView(intrinsics, pose, depth_clean, rendering.mask)
     sample_grasps: list[dict[str, Any]] = []
@@ -303,10 +305,16 @@ def _render_objects(
     return render_objects
 
 
+@functools.cache
+def worker_silhouettes() -> SilhouetteCounter:
+    """This process's :class:`SilhouetteCounter`: its embree scenes serve every item the worker builds."""
+    return SilhouetteCounter()
+
+
 def _visible_objects(
     objects: Sequence[Mapping[str, Any]],
     render_objects: Sequence[RenderObject],
-    mask: np.ndarray,
+    rendering: Rendering,
     intrinsics: CameraIntrinsics,
     pose: CameraPose,
     min_visible_fraction: float,
@@ -319,8 +327,9 @@ def _visible_objects(
         The scene's objects (``scenes`` row entries).
     render_objects : sequence of RenderObject
         The same objects, posed.
-    mask : (H, W) int32
-        Object index + 1 per pixel, 0 for the floor.
+    rendering : Rendering
+        Its mask (object index + 1 per pixel, 0 for the floor) and, from the
+        embree renderer, the pixels each object covers alone.
     intrinsics : CameraIntrinsics
     pose : CameraPose
     min_visible_fraction : float
@@ -331,12 +340,13 @@ def _visible_objects(
     list of dict
         ``object_index``, ``model_id``, ``category``, ``box`` (4,) and ``visible_fraction`` per kept object.
     """
-    boxes, visible = visible_boxes(mask, len(objects))
+    boxes, visible = visible_boxes(rendering.mask, len(objects))
     sample_objects = []
     for index, obj in enumerate(objects):
         if visible[index] == 0:
             continue
-        silhouette = silhouette_pixels(render_objects[index], intrinsics, pose)
+        silhouette = (int(rendering.silhouettes[index]) if rendering.silhouettes is not None
+                      else worker_silhouettes().count(render_objects[index], intrinsics, pose))
         fraction = min(1.0, visible[index] / silhouette) if silhouette else 0.0
         if fraction < min_visible_fraction:
             continue
@@ -401,9 +411,13 @@ def _object_grasps(
     if not len(candidates):
         return []
 
+    quaternions = world.subset(candidates).quaternions
+    near = collider.near_objects(world.positions[candidates], world.rotations[candidates], world.widths[candidates])
+
     def free(position: int) -> bool:
         grasp = candidates[position]
-        return not collider.collides(index, world.positions[grasp], world.rotations[grasp], float(world.widths[grasp]))
+        return not collider.collides(index, world.positions[grasp], world.rotations[grasp], float(world.widths[grasp]),
+                                     quaternions[position], near[position])
 
     kept = np.sort(candidates[suppress(camera.positions[candidates], angles[candidates], params.nms_radius, free)])
     chosen = camera.subset(kept)
@@ -487,7 +501,7 @@ class SamplesStage(Stage):
 
     name = "samples"
     table = "samples"
-    version = 4  # 4: the shards record their vocabulary (osgd.vocabulary)
+    version = 5  # 4: the shards record their vocabulary (osgd.vocabulary); 5: silhouettes in the mesh frame (issue #22)
     inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."
@@ -522,11 +536,8 @@ class SamplesStage(Stage):
         near, far = item.payload["depth_range"]
         scenes = store.read_many("scenes", list(item.inputs["scenes"])).to_pylist()
         model_ids = {obj["model_id"] for scene in scenes for obj in scene["objects"]}
-        models_table = store.read_many("models", list(item.inputs.get("models", ())))
-        models_table = models_table.filter(
-            pc.is_in(models_table["model_id"], value_set=pa.array(sorted(model_ids), type=pa.string()))
-        )
-        models = {row["model_id"]: row for row in models_table.to_pylist()}
+        models = model_rows(store.read_many("models", list(item.inputs.get("models", ())), columns=list(BODY_COLUMNS)),
+                            model_ids)
         missing = sorted(model_ids - set(models))
         if missing:
             raise KeyError(f"scenes shard {item.inputs['scenes'][0]} names models not in the models table: {missing}")
@@ -569,7 +580,7 @@ class SamplesStage(Stage):
 
 def resolve_backend(name: str) -> str:
     """The backend a ``renderer`` parameter names here: ``auto`` becomes the
-    first of egl, embree, tiny that works in this process (others unchanged).
+    first of embree, egl, tiny that works in this process (others unchanged).
 
     Raises
     ------
@@ -583,9 +594,6 @@ def resolve_renderer(name: str) -> tuple[Renderer, list[str]]:
     """The renderer for a ``renderer`` parameter, with a note when ``auto`` fell back."""
     renderer = make_renderer(name)
     notes = []
-    if name == "auto" and renderer.name != "egl":
-        from osgd.samples.renderer import egl_available  # noqa: PLC0415
-
-        _, reason = egl_available()
-        notes.append(f"renderer auto fell back to {renderer.name}: {reason}")
+    if name == "auto" and renderer.name != BACKENDS[0]:
+        notes.append(f"renderer auto fell back to {renderer.name}: {BACKENDS[0]} does not work here (the log says why)")
     return renderer, notes

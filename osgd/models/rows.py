@@ -1,0 +1,98 @@
+"""``models`` rows as numpy arrays, for the stages that load meshes into physics or a renderer.
+
+``Table.to_pylist()`` turns every vertex of every mesh and convex part into
+Python floats: for the authors' models (up to ~50k vertices each) that was
+14 % of the samples stage's time (issue #22). :func:`model_rows` reads the
+same rows with the mesh columns as numpy arrays, straight from the Arrow
+buffers, and leaves out the columns those stages never read.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+#: The ``models`` columns a physics body or a rendering needs (``osgd.physics.create_object_body``,
+#: ``osgd.samples.renderer.RenderObject``).
+BODY_COLUMNS = ("model_id", "category", "vertices", "faces", "convex_parts", "mass", "center_of_mass", "inertia",
+                "friction")
+
+
+def nested_rows(array: pa.Array, width: int, dtype: type) -> list[np.ndarray]:
+    """Each row of a ``list<list<number>[width]>`` array as an ``(n, width)`` array.
+
+    Parameters
+    ----------
+    array : pyarrow ListArray (or ChunkedArray) of fixed-size lists
+    width : int
+        Numbers per inner list (3 for vertices and faces).
+    dtype : numpy type
+
+    Returns
+    -------
+    list of (n_i, width) arrays
+        Views of one array per call: rows share its memory.
+    """
+    if isinstance(array, pa.ChunkedArray):
+        array = array.combine_chunks()
+    offsets = array.offsets.to_numpy()
+    inner = array.values  # the whole child: the offsets index into it even when ``array`` is a slice
+    if isinstance(inner, pa.FixedSizeListArray):
+        inner = inner.flatten()
+    values = inner.to_numpy(zero_copy_only=False).astype(dtype, copy=False)
+    if len(values) % width:
+        raise ValueError(f"{len(values)} numbers do not make rows of {width}")
+    values = values.reshape(-1, width)
+    return [values[start:stop] for start, stop in itertools.pairwise(offsets)]
+
+
+def _convex_parts(column: pa.ChunkedArray) -> list[list[dict[str, np.ndarray]]]:
+    """``convex_parts`` of each row: a list of ``{"vertices": (V, 3) float64, "faces": (F, 3) int64}``."""
+    parts = column.combine_chunks()
+    offsets = parts.offsets.to_numpy()
+    structs = parts.values
+    vertices = nested_rows(structs.field("vertices"), 3, np.float64)
+    faces = nested_rows(structs.field("faces"), 3, np.int64)
+    start = structs.offset  # field() ignores a sliced struct's offset
+    return [
+        [{"vertices": vertices[start + index], "faces": faces[start + index]} for index in range(low, high)]
+        for low, high in itertools.pairwise(offsets)
+    ]
+
+
+def model_rows(table: pa.Table, model_ids: Iterable[str] | None = None) -> dict[str, dict[str, Any]]:
+    """The rows of a ``models`` table by model id, mesh columns as numpy arrays.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+        ``models`` rows with at least :data:`BODY_COLUMNS`.
+    model_ids : iterable of str, optional
+        Keep only these models.
+
+    Returns
+    -------
+    dict of model id to dict
+        ``vertices`` (V, 3) float64, ``faces`` (F, 3) int64, ``convex_parts``
+        (list of dicts of ``vertices`` and ``faces`` arrays), ``mass``,
+        ``center_of_mass`` (3,), ``inertia`` (9,), ``friction`` (3,), plus
+        ``model_id`` and ``category``. The other columns are left out.
+    """
+    table = table.select(list(BODY_COLUMNS))
+    if model_ids is not None:
+        wanted = pa.array(sorted(set(model_ids)), type=pa.string())
+        table = table.filter(pc.is_in(table["model_id"], value_set=wanted))
+    scalars = table.select(["model_id", "category", "mass", "center_of_mass", "inertia", "friction"]).to_pylist()
+    vertices = nested_rows(table["vertices"], 3, np.float64)
+    faces = nested_rows(table["faces"], 3, np.int64)
+    convex_parts = _convex_parts(table["convex_parts"])
+    rows = {}
+    for index, row in enumerate(scalars):
+        row.update(vertices=vertices[index], faces=faces[index], convex_parts=convex_parts[index])
+        rows[row["model_id"]] = row
+    return rows
