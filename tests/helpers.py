@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -224,3 +225,34 @@ def write_synthetic_samples(store: ShardStore, count: int, seed: int = 0, test_e
     store.write_manifest("synthetic", {"pipeline": "synthetic", "schema_version": SCHEMA_VERSION, "stages": {
         "samples": {"shards": [record.as_dict() for record in records]}}})
     return [record.key for record in records]
+
+
+def silhouette_pixels(obj: Any, intrinsics: Any, pose: Any) -> int:
+    """Pixels the object covers alone, the way the samples stage counted them before issue #22.
+
+    A new embree scene of the posed mesh, world rays: the reference that
+    ``osgd.samples.boxes.SilhouetteCounter`` and the embree renderer's
+    silhouettes are tested against.
+    """
+    from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
+
+    world = obj.world_vertices()
+    camera = pose.world_to_camera(world)
+    if np.any(camera[:, 2] <= 1e-6):
+        return 0
+    pixels = intrinsics.project(camera)
+    low = np.floor(pixels.min(axis=0)).astype(np.int64)
+    high = np.ceil(pixels.max(axis=0)).astype(np.int64)
+    rows, columns = np.mgrid[low[1] : high[1] + 1, low[0] : high[0] + 1]
+    rays = np.stack(
+        [(columns.reshape(-1) - intrinsics.cx) / intrinsics.fx,
+         (rows.reshape(-1) - intrinsics.cy) / intrinsics.fy,
+         np.ones(columns.size)],
+        axis=1,
+    )
+    directions = rays @ pose.rotation.T
+    origins = np.broadcast_to(pose.position, directions.shape)
+    scene = rtcore_scene.EmbreeScene()
+    mesh_construction.TriangleMesh(scene, world.astype(np.float32), np.asarray(obj.faces, dtype=np.int32))
+    hits = scene.run(origins.astype(np.float32), directions.astype(np.float32))
+    return int(np.count_nonzero(np.asarray(hits) >= 0))

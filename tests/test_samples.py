@@ -6,13 +6,13 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pytest
-from helpers import fixture_models
+from helpers import fixture_models, silhouette_pixels
 from scipy.spatial.transform import Rotation
 from test_samples_fixtures import TOP_DOWN_ACROSS_Y, grasp_row, scene_row, write_fixture_inputs
 
 from osgd.camera import KINECT_V2
 from osgd.contract.samples import decode_row
-from osgd.samples.boxes import SilhouetteCounter, silhouette_pixels, visible_boxes
+from osgd.samples.boxes import SilhouetteCounter, visible_boxes
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.pictures import show_sample
 from osgd.samples.projection import (

@@ -86,33 +86,3 @@ class SilhouetteCounter:
         """
         hits = cast_object(self.scenes, obj, intrinsics, pose)
         return 0 if hits is None else int(np.count_nonzero(hits.hit))
-
-
-def silhouette_pixels(obj: RenderObject, intrinsics: CameraIntrinsics, pose: CameraPose) -> int:
-    """:meth:`SilhouetteCounter.count` the way it was done before issue #22: a new scene of the posed mesh.
-
-    Kept as the reference the counter is tested and benchmarked against; the
-    samples stage does not use it.
-    """
-    from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
-
-    world = obj.world_vertices()
-    camera = pose.world_to_camera(world)
-    if np.any(camera[:, 2] <= 1e-6):
-        return 0
-    pixels = intrinsics.project(camera)
-    low = np.floor(pixels.min(axis=0)).astype(np.int64)
-    high = np.ceil(pixels.max(axis=0)).astype(np.int64)
-    rows, columns = np.mgrid[low[1] : high[1] + 1, low[0] : high[0] + 1]
-    rays = np.stack(
-        [(columns.reshape(-1) - intrinsics.cx) / intrinsics.fx,
-         (rows.reshape(-1) - intrinsics.cy) / intrinsics.fy,
-         np.ones(columns.size)],
-        axis=1,
-    )
-    directions = rays @ pose.rotation.T
-    origins = np.broadcast_to(pose.position, directions.shape)
-    scene = rtcore_scene.EmbreeScene()
-    mesh_construction.TriangleMesh(scene, world.astype(np.float32), np.asarray(obj.faces, dtype=np.int32))
-    hits = scene.run(origins.astype(np.float32), directions.astype(np.float32))
-    return int(np.count_nonzero(np.asarray(hits) >= 0))
