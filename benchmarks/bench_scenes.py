@@ -7,24 +7,36 @@ section 2), and the ratio is printed. Target (issue #6): under 0.5 s per
 scene per core on average, so that the paper's 8,000 scenes take under 30
 minutes on 2 cores.
 
+It then prints where the stage's time goes (cProfile over the first run):
+the share of the attempts that were thrown away, creating the bodies, the
+per-step blow-up test and the physics steps.
+
 Usage::
 
     python benchmarks/bench_scenes.py                      # test fixture models
     python benchmarks/bench_scenes.py --data-dir DATA      # every models row under DATA
+    python benchmarks/bench_scenes.py --data-dir .bench/osgd-render --scenes 60   # the authors' models
     python benchmarks/bench_scenes.py --scenes 40 --seed 1
+
+``.bench/osgd-render`` holds 20 of the paper authors' models once
+``bench_render.py --osgd-models ../shared/osgd-models`` has run.
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import pstats
 import resource
 import sys
 import time
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from osgd.scenes import drop
 from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene
 from osgd.scenes.params import ScenesStageParams
 from osgd.store import ShardStore
@@ -68,6 +80,49 @@ def run(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> d
     }
 
 
+#: Functions whose cumulative time the profile reports, by label.
+PROFILED = {
+    "physics steps": "<built-in method pybullet.stepSimulation>",
+    "creating the bodies": "create_object_body",
+    "blow-up test per step": "_runaway",
+    "walls and floor": "build_world",
+}
+
+
+def where_time_goes(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> None:
+    """Drop ``scenes`` scenes under cProfile; print the thrown-away attempts' share and the profiled functions'."""
+    attempts: list[tuple[bool, int, float]] = []
+    simulate = drop.simulate_drop
+
+    def timed(*arguments: Any, **options: Any) -> drop.DropOutcome:
+        start = time.perf_counter()
+        outcome = simulate(*arguments, **options)
+        attempts.append((not outcome.reason, outcome.sim_steps, time.perf_counter() - start))
+        return outcome
+
+    profile = cProfile.Profile()
+    drop.simulate_drop = timed
+    try:
+        profile.enable()
+        for index in range(scenes):
+            generate_scene(pool, params, seed, index)
+        profile.disable()
+    finally:
+        drop.simulate_drop = simulate
+    kept = [attempt for attempt in attempts if attempt[0]]
+    thrown = [attempt for attempt in attempts if not attempt[0]]
+    total = sum(attempt[2] for attempt in attempts)
+    print(f"where the time goes ({len(attempts)} attempts):")
+    for label, group in (("kept attempts", kept), ("thrown-away attempts", thrown)):
+        print(f"  {label:24s} {len(group):4d}, {sum(a[1] for a in group):6d} steps, "
+              f"{100 * sum(a[2] for a in group) / total:5.1f} % of the time")
+    stats = pstats.Stats(profile).stats
+    whole = sum(entry[2] for entry in stats.values())
+    for label, name in PROFILED.items():
+        seconds = sum(entry[3] for (_, _, function), entry in stats.items() if function == name)
+        print(f"  {label:24s} {100 * seconds / whole:5.1f} % (cumulative)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data-dir", type=Path, default=None, help="data dir with a models table")
@@ -93,6 +148,7 @@ def main() -> None:
     print(f"ratio at rest / fixed 3 s (wall time per scene): {ratio:.2f}")
     hours_8000 = 8000 * at_rest["seconds_per_scene"] / 2 / 3600
     print(f"8,000 scenes on 2 cores: about {hours_8000 * 60:.1f} minutes (target: under 30)")
+    where_time_goes(pool, ScenesStageParams(), arguments.seed, arguments.scenes)
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     print(f"peak memory: {own:.0f} MiB (this process), {children:.0f} MiB (children)")
