@@ -15,11 +15,12 @@ Usage::
 
     python benchmarks/bench_scenes.py                      # test fixture models
     python benchmarks/bench_scenes.py --data-dir DATA      # every models row under DATA
-    python benchmarks/bench_scenes.py --data-dir .bench/osgd-render --scenes 60   # the authors' models
+    python benchmarks/bench_scenes.py --osgd-models ../shared/osgd-models --scenes 60   # the authors' models
     python benchmarks/bench_scenes.py --scenes 40 --seed 1
 
-``.bench/osgd-render`` holds 20 of the paper authors' models once
-``bench_render.py --osgd-models ../shared/osgd-models`` has run.
+``--osgd-models`` builds (once; kept in ``.bench/osgd-render``) the small
+pipeline of 20 of the paper authors' models that ``bench_render.py
+--osgd-models`` uses, and stacks those models.
 """
 
 from __future__ import annotations
@@ -126,9 +127,17 @@ def where_time_goes(pool: ModelPool, params: ScenesStageParams, seed: int, scene
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data-dir", type=Path, default=None, help="data dir with a models table")
+    parser.add_argument("--osgd-models", type=Path, default=None,
+                        help="the authors' models (OSGD layout): build 2 per category into --data-dir "
+                             "(default .bench/osgd-render, shared with bench_render.py) and stack those")
     parser.add_argument("--scenes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     arguments = parser.parse_args()
+    if arguments.osgd_models is not None:
+        from bench_render import ROOT, osgd_pipeline  # noqa: PLC0415 - the same small pipeline of the authors' models
+
+        arguments.data_dir = arguments.data_dir or ROOT / ".bench" / "osgd-render"
+        osgd_pipeline(arguments.osgd_models, arguments.data_dir, per_category=2, scenes=75, workers=2)
     pool, description = load_pool(arguments.data_dir)
     print(f"models: {description}; {arguments.scenes} scenes, seed {arguments.seed}, one process")
 
