@@ -30,6 +30,7 @@ from rich.table import Table
 from rich.text import Text
 
 from osgd.config import ConfigError, PipelineConfig, config_to_toml
+from osgd.contract.files import is_uri
 from osgd.errors import describe
 from osgd.executor import BACKENDS, Executor, ExecutorError, SerialExecutor, make_executor
 from osgd.pipeline import (
@@ -62,7 +63,7 @@ app.add_typer(show_app, name="show")
 
 
 class _Global:
-    data_dir: Path = Path("data")
+    data_dir: str = "data"
     workers: int | None = None
     debug: bool = False
     executor: str | None = None
@@ -74,8 +75,9 @@ class _Global:
 @app.callback()
 def main(
     data_dir: Annotated[
-        Path, typer.Option(envvar="OSGD_DATA_DIR", help="Where shards and manifests are written.")
-    ] = Path("data"),
+        str, typer.Option(envvar="OSGD_DATA_DIR", help="Where shards and manifests are written: a folder, or an "
+                          "object-store URI such as s3://bucket/osgd (one driver at a time; docs/scale-out.md).")
+    ] = "data",
     workers: Annotated[
         int | None,
         typer.Option(min=1, help="Worker processes; default: one per core. 1 runs serially. "
@@ -147,7 +149,9 @@ def _store(writable: bool, absolute: bool = False) -> ShardStore:
         check_data_dir(_Global.data_dir, writable)
     except DataDirError as error:
         _fail(str(error))
-    return ShardStore(_Global.data_dir.absolute() if absolute else _Global.data_dir)
+    if is_uri(_Global.data_dir):
+        return ShardStore(_Global.data_dir)
+    return ShardStore(Path(_Global.data_dir).absolute() if absolute else _Global.data_dir)
 
 
 def _executor(config: PipelineConfig) -> Executor:

@@ -137,6 +137,10 @@ class ExecutorError(RuntimeError):
 _KERNEL_VARIABLES = tuple(portable_settings(frozenset({"avx2", "fma"}), "x86_64"))
 
 
+#: Where an object-store data dir is (no secrets): they follow the driver to Ray's workers.
+OBJECT_STORE_VARIABLES = ("AWS_ENDPOINT_URL", "AWS_REGION", "AWS_DEFAULT_REGION")
+
+
 def ray_runtime_env(extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The Ray runtime environment under which a Ray worker builds the bytes a local worker builds.
 
@@ -145,8 +149,10 @@ def ray_runtime_env(extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     what the ``osgd`` entry point does), so a node of another processor
     family pins what suits it. The variables that must follow the driver
     travel as ``env_vars``: ``PYTHONHASHSEED`` (``0`` unless set), a kernel
-    variable the user set to something else than the pin, and
-    ``OSGD_NATIVE_SIMD``.
+    variable the user set to something else than the pin,
+    ``OSGD_NATIVE_SIMD``, and where an object store is the data dir, the
+    variables that say where it is (:data:`OBJECT_STORE_VARIABLES`; the
+    credentials stay with each node: its own variables, profile or role).
 
     Parameters
     ----------
@@ -161,7 +167,7 @@ def ray_runtime_env(extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """
     pinned = portable_settings()
     variables = {"PYTHONHASHSEED": os.environ.get("PYTHONHASHSEED", "0")}
-    for name in (*_KERNEL_VARIABLES, "OSGD_NATIVE_SIMD"):
+    for name in (*_KERNEL_VARIABLES, "OSGD_NATIVE_SIMD", *OBJECT_STORE_VARIABLES):
         value = os.environ.get(name)
         if value is not None and value != pinned.get(name):
             variables[name] = value

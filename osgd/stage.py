@@ -26,7 +26,6 @@ import logging
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, ClassVar
 
 import pyarrow as pa
@@ -260,17 +259,15 @@ def _build_task(task: _BuildTask) -> _Built | None:
         return _Built(record, list(result.notes), True, list(result.warnings))
 
 
-def _notes_path(store: ShardStore, table: str, key: str) -> Path:
-    return store.root / table / f"{key}.notes.json"
+def _notes_file(table: str, key: str) -> str:
+    return f"{table}/{key}.notes.json"
 
 
 def write_notes(store: ShardStore, table: str, key: str, notes: list[str]) -> None:
     """Keep a shard's build notes beside it, so a resumed run reports them too."""
     import json  # noqa: PLC0415
 
-    from osgd.store import atomic_write_bytes  # noqa: PLC0415
-
-    atomic_write_bytes(_notes_path(store, table, key), json.dumps(notes, indent=1).encode())
+    store.write_file(_notes_file(table, key), json.dumps(notes, indent=1).encode())
 
 
 def read_notes(store: ShardStore, table: str, key: str) -> list[str]:
@@ -278,7 +275,7 @@ def read_notes(store: ShardStore, table: str, key: str) -> list[str]:
     import json  # noqa: PLC0415
 
     try:
-        return list(json.loads(_notes_path(store, table, key).read_text()))
+        return list(json.loads(store.files.read_bytes(_notes_file(table, key))))
     except (FileNotFoundError, ValueError):
         return []
 
@@ -385,7 +382,7 @@ def _sort_planned(
         try:
             done[shard.key] = store.verify(stage.table, shard.key, manifest_shards.get(shard.key))
         except ShardError as error:
-            if store.shard_path(stage.table, shard.key).exists():
+            if store.shard_exists(stage.table, shard.key):
                 log.warning("%s; rebuilding", error)
                 report.rebuilt.append(str(error))
                 rejected.add(shard.key)

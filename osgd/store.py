@@ -13,9 +13,12 @@ the bytes hash to the recorded value and the key stored in the shard's own
 metadata is the key of its file name (a shard copied over another, checksum
 file and all, is caught); anything else is rebuilt, never consumed.
 
-Writes are atomic: bytes go to a temporary file in the same folder, are
+The data dir is a folder, or a prefix of an object store (``s3://...``,
+:mod:`osgd.contract.files`; docs/scale-out.md). In a folder, writes are
+atomic: bytes go to a temporary file in the same folder, are
 fsynced, then ``os.replace``-d onto the final name, so no partial file ever
-carries a final name. A per-shard ``fcntl`` lock keeps two processes on the
+carries a final name. In an object store each file is one whole upload,
+there are no locks (the driver hands out each item once) and no leftovers. A per-shard ``fcntl`` lock keeps two processes on the
 same data dir from building the same shard twice; the atomic replace keeps
 them from corrupting it even without the lock. Lock files are removed as
 their lock is let go, and :meth:`ShardStore.clean_leftovers` removes the
@@ -39,6 +42,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from osgd.contract.files import ObjectFiles, is_uri
 from osgd.contract.schemas import SCHEMA_VERSION, TABLES
 from osgd.contract.shards import ShardReader, ShardRecord
 
@@ -243,12 +247,12 @@ class DataDirError(RuntimeError):
     """The data dir cannot be used (a file, not writable, full); one line saying what to do."""
 
 
-def check_data_dir(root: Path, writable: bool) -> None:
+def check_data_dir(root: str | os.PathLike[str], writable: bool) -> None:
     """Check that ``root`` can serve as a data dir, before anything is read or written.
 
     Parameters
     ----------
-    root : Path
+    root : path or URI
     writable : bool
         Also create it if needed and write a probe file in it.
 
@@ -257,6 +261,10 @@ def check_data_dir(root: Path, writable: bool) -> None:
     DataDirError
         Naming the folder, the problem and what to do.
     """
+    if is_uri(root):
+        _check_object_store(str(root), writable)
+        return
+    root = Path(root)
     for folder in (root, *root.parents):
         if folder.exists() and not folder.is_dir():
             what = "is a file" if folder == root else f"lies under {folder}, which is a file"
@@ -273,6 +281,27 @@ def check_data_dir(root: Path, writable: bool) -> None:
         raise DataDirError(
             f"data dir {root} is not writable ({error.strerror or error}); "
             + _remedy(error)
+        ) from error
+
+
+#: The object a writable check puts into an object-store data dir, and removes.
+_PROBE = ".osgd-probe"
+
+
+def _check_object_store(uri: str, writable: bool) -> None:
+    """:func:`check_data_dir` for an object-store URI: it can be opened (and written, when asked)."""
+    try:
+        files = ObjectFiles(uri)
+        if writable:
+            files.write_bytes(_PROBE, b"osgd")
+            files.delete(_PROBE)
+        else:
+            files.names("manifests", ".json")
+    except (ValueError, OSError) as error:
+        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise DataDirError(
+            f"data dir {uri} cannot be {'written' if writable else 'read'} ({first_line}); check the bucket, "
+            "the credentials and the endpoint (AWS_ENDPOINT_URL, AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY)"
         ) from error
 
 
@@ -310,10 +339,37 @@ class ShardStore(ShardReader):
         """
         data = table_to_parquet_bytes(table, table_name, key)
         digest = hashlib.sha256(data).hexdigest()
-        atomic_write_bytes(self.shard_path(table_name, key), data)
+        self.write_file(f"{table_name}/{key}.parquet", data)
         record = {"item": item_id, "key": key, "rows": table.num_rows, "sha256": digest}
-        atomic_write_bytes(self.checksum_path(table_name, key), (canonical_json(record) + "\n").encode())
+        self.write_file(f"{table_name}/{key}.sha256", (canonical_json(record) + "\n").encode())
         return ShardRecord(table_name, key, item_id, table.num_rows, digest)
+
+    def write_file(self, relative: str, data: bytes) -> None:
+        """Write one file of the data dir whole: atomically in a folder, as one upload in an object store.
+
+        Parameters
+        ----------
+        relative : str
+            ``/``-separated, relative to the data dir (``"samples/<key>.notes.json"``).
+        """
+        if self.files.remote:
+            self.files.write_bytes(relative, data)
+        else:
+            atomic_write_bytes(self.files.location(relative), data)
+
+    def local_folder(self, relative: str) -> Path:
+        """A folder on this machine for a cache the data dir keeps (``cache/decompositions``).
+
+        In a folder data dir it is ``<root>/<relative>``. An object store
+        cannot hold files that libraries open by name, so there it is
+        ``$OSGD_CACHE_DIR`` (default ``~/.cache/osgd``) ``/<hash of the URI>/<relative>``
+        on each machine. The caches are keyed by their content, so either place
+        gives the same results.
+        """
+        if not self.files.remote:
+            return self.files.location(relative)
+        base = Path(os.environ.get("OSGD_CACHE_DIR") or Path.home() / ".cache" / "osgd")
+        return base / hashlib.sha256(str(self.root).encode()).hexdigest()[:16] / relative
 
     @contextlib.contextmanager
     def lock(self, table: str, key: str, wait: bool = True) -> Iterator[bool]:
@@ -335,6 +391,10 @@ class ShardStore(ShardReader):
         bool
             Whether this process holds the lock.
         """
+        if self.files.remote:
+            # No locks in an object store: the driver hands out each item once (docs/scale-out.md).
+            yield True
+            return
         lock_dir = self.root / table / ".locks"
         lock_dir.mkdir(parents=True, exist_ok=True)
         path = lock_dir / f"{key}.lock"
@@ -361,7 +421,8 @@ class ShardStore(ShardReader):
         temporaries, locks : int
             How many of each were removed.
         """
-        if not self.root.is_dir():
+        if self.files.remote or not self.root.is_dir():
+            # An object store has no temporary files: an unfinished upload never becomes an object.
             return 0, 0
         pattern = f".*{TEMPORARY_SUFFIX}"
         temporaries = [*self.root.glob(pattern), *self.root.glob(f"*/{pattern}"), *self.root.glob(f"*/*/{pattern}")]
@@ -372,7 +433,6 @@ class ShardStore(ShardReader):
     # -- manifests ---------------------------------------------------------
     def write_manifest(self, pipeline: str, manifest: Mapping[str, Any]) -> Path:
         """Write a manifest atomically; the text is canonical and stable."""
-        path = self.manifest_path(pipeline)
         text = json.dumps(manifest, sort_keys=True, indent=1, ensure_ascii=True) + "\n"
-        atomic_write_bytes(path, text.encode("utf-8"))
-        return path
+        self.write_file(f"manifests/{pipeline}.json", text.encode("utf-8"))
+        return self.manifest_path(pipeline)

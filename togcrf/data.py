@@ -43,6 +43,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset, Sampler
 
+from osgd.contract.files import is_uri
 from osgd.contract.samples import Sample, decode_row, sample_shards, samples_vocabulary
 
 logger = logging.getLogger(__name__)
@@ -372,7 +373,7 @@ class SamplesDataset(Dataset):
         max_samples: int | None = None,
         scale_jitter: float = DEFAULT_SCALE_JITTER,
     ) -> None:
-        self.data_dir = Path(data_dir)
+        self.data_dir = data_dir if is_uri(data_dir) else Path(data_dir)
         self.pipeline = pipeline
         self.split = split
         self.image_size = image_size

@@ -7,6 +7,7 @@ numpy, pyarrow and OpenCV (``tests/test_contract.py`` enforces it).
   and the object parts (the vocabulary);
 - :mod:`osgd.contract.schemas`: every Parquet table;
 - :mod:`osgd.contract.encoding`: the PNG encodings of depth and masks;
+- :mod:`osgd.contract.files`: a data dir's files, in a folder or an object store;
 - :mod:`osgd.contract.shards`: find, verify and read finished shards;
 - :mod:`osgd.contract.samples`: the training samples as numpy arrays.
 

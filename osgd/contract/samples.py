@@ -27,6 +27,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from osgd.contract.encoding import decode_depth, decode_mask
+from osgd.contract.files import Location
 from osgd.contract.shards import ShardError, ShardReader
 from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, VOCABULARY, vocabulary_difference
 
@@ -133,7 +134,7 @@ def decode_row(row: dict[str, Any]) -> Sample:
     )
 
 
-def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Path]:
+def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Location]:
     """The verified ``samples`` shards of a data dir.
 
     Parameters
@@ -174,25 +175,25 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Pat
             continue
         paths.append(store.shard_path("samples", key))
     if not paths:
-        raise FileNotFoundError(f"{Path(data_dir) / 'samples'}: no samples shards; run `osgd render` first")
+        raise FileNotFoundError(f"{store.root / 'samples'}: no samples shards; run `osgd render` first")
     return paths
 
 
 def _only_samples_pipeline(store: ShardReader) -> str | None:
-    folder = store.root / "manifests"
     names = []
-    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
-        manifest = store.read_manifest(path.stem) or {}
+    for name in store.files.names("manifests", ".json"):
+        manifest = store.read_manifest(name) or {}
         entries = manifest.get("stages", {}).get("samples", {}).get("shards", [])
         # A committed manifest (data/manifests/golden.json) names shards that were never built here.
-        if any(store.shard_path("samples", entry["key"]).exists() for entry in entries):
-            names.append(path.stem)
+        if any(store.shard_exists("samples", entry["key"]) for entry in entries):
+            names.append(name)
     if len(names) > 1:
-        raise ValueError(f"{folder}: several pipelines have samples ({', '.join(names)}); name one (--pipeline)")
+        raise ValueError(f"{store.root / 'manifests'}: several pipelines have samples ({', '.join(names)}); "
+                         "name one (--pipeline)")
     return names[0] if names else None
 
 
-def shard_vocabulary(path: Path) -> dict[str, list[str]]:
+def shard_vocabulary(path: Location) -> dict[str, list[str]]:
     """The vocabulary a samples shard was labelled with (``osgd.vocabulary`` in its metadata).
 
     A shard written before shards recorded it (samples stage version 3 and
@@ -217,7 +218,7 @@ def shard_vocabulary(path: Path) -> dict[str, list[str]]:
         raise ShardError(f"{path}: unreadable osgd.vocabulary metadata ({error})") from error
 
 
-def samples_vocabulary(shards: Sequence[Path]) -> dict[str, list[str]]:
+def samples_vocabulary(shards: Sequence[Location]) -> dict[str, list[str]]:
     """The one vocabulary of several samples shards.
 
     Raises
@@ -239,7 +240,7 @@ def iter_samples(
     data_dir: str | Path,
     pipeline: str | None = None,
     split: str | None = None,
-    shards: Sequence[Path] | None = None,
+    shards: Sequence[Location] | None = None,
 ) -> Iterator[Sample]:
     """Stream decoded samples, one shard in memory at a time.
 

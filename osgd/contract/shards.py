@@ -22,6 +22,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from osgd.contract.files import Location, data_files
 from osgd.contract.schemas import TABLES
 
 
@@ -62,8 +63,15 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def stored_key(path: Path) -> str:
+def stored_key(path: Path | pa.BufferReader, name: str | None = None) -> str:
     """The key a shard file holds in its metadata (``osgd.key``); empty when it has none.
+
+    Parameters
+    ----------
+    path : path or pyarrow.BufferReader
+        The file, or its bytes.
+    name : str, optional
+        What to call it in an error (default: ``path``).
 
     Raises
     ------
@@ -73,7 +81,7 @@ def stored_key(path: Path) -> str:
     try:
         metadata = pq.read_schema(path).metadata or {}
     except (OSError, pa.ArrowException) as error:
-        raise ShardError(f"{path}: unreadable Parquet ({error})") from error
+        raise ShardError(f"{name or path}: unreadable Parquet ({error})") from error
     return metadata.get(b"osgd.key", b"").decode("utf-8", "replace")
 
 
@@ -87,20 +95,34 @@ class ShardReader:
     """
 
     def __init__(self, root: str | os.PathLike[str]) -> None:
-        self.root = Path(root)
+        self.files = data_files(root)
+        #: The data dir: a :class:`~pathlib.Path`, or an :class:`~osgd.contract.files.ObjectUri` for an object store.
+        self.root: Location = self.files.root
 
     # -- paths -------------------------------------------------------------
-    def shard_path(self, table: str, key: str) -> Path:
+    def shard_path(self, table: str, key: str) -> Location:
         """``<root>/<table>/<key>.parquet``."""
-        return self.root / table / f"{key}.parquet"
+        return self.files.location(f"{table}/{key}.parquet")
 
-    def checksum_path(self, table: str, key: str) -> Path:
+    def checksum_path(self, table: str, key: str) -> Location:
         """``<root>/<table>/<key>.sha256``: the recorded checksum and row count."""
-        return self.root / table / f"{key}.sha256"
+        return self.files.location(f"{table}/{key}.sha256")
 
-    def manifest_path(self, pipeline: str) -> Path:
+    def manifest_path(self, pipeline: str) -> Location:
         """``<root>/manifests/<pipeline>.json``."""
-        return self.root / "manifests" / f"{pipeline}.json"
+        return self.files.location(f"manifests/{pipeline}.json")
+
+    def shard_exists(self, table: str, key: str) -> bool:
+        """Whether a shard's Parquet file exists (complete or not)."""
+        return self.files.exists(f"{table}/{key}.parquet")
+
+    def _content(self, table: str, key: str) -> tuple[str, Path | pa.BufferReader]:
+        """The sha256 of a shard's bytes, and the file or its bytes for :func:`stored_key`."""
+        if not self.files.remote:
+            path = self.shard_path(table, key)
+            return file_sha256(path), path
+        data = self.files.read_bytes(f"{table}/{key}.parquet")
+        return hashlib.sha256(data).hexdigest(), pa.BufferReader(data)
 
     # -- reading and verifying ---------------------------------------------
     def verify(self, table: str, key: str, expected_sha256: str | None = None) -> ShardRecord:
@@ -118,24 +140,27 @@ class ShardReader:
         """
         path = self.shard_path(table, key)
         checksum_path = self.checksum_path(table, key)
-        if not path.exists():
+        if not self.shard_exists(table, key):
             raise ShardError(f"{path}: missing")
-        if not checksum_path.exists():
-            raise ShardError(f"{path}: no checksum file (the write was interrupted)")
         try:
-            record = json.loads(checksum_path.read_text())
+            record = json.loads(self.files.read_bytes(f"{table}/{key}.sha256"))
             recorded, rows, item_id = str(record["sha256"]), int(record["rows"]), str(record["item"])
+        except FileNotFoundError as error:
+            raise ShardError(f"{path}: no checksum file (the write was interrupted)") from error
         except (ValueError, KeyError, TypeError) as error:
             raise ShardError(f"{checksum_path}: unreadable checksum file ({error})") from error
         recorded_key = str(record.get("key", key))
         if recorded_key != key:
             raise ShardError(f"{checksum_path}: the checksum file of shard {recorded_key[:12]}, not of {key[:12]}")
-        actual = file_sha256(path)
+        try:
+            actual, content = self._content(table, key)
+        except FileNotFoundError as error:
+            raise ShardError(f"{path}: missing") from error
         if actual != recorded:
             raise ShardError(f"{path}: checksum {actual[:12]} disagrees with recorded {recorded[:12]}")
         if expected_sha256 is not None and actual != expected_sha256:
             raise ShardError(f"{path}: checksum {actual[:12]} disagrees with the manifest's {expected_sha256[:12]}")
-        stored = stored_key(path)
+        stored = stored_key(content, str(path))
         if stored != key:
             raise ShardError(f"{path}: holds the shard of key {stored[:12] or '(none)'}, not of its file name")
         return ShardRecord(table, key, item_id, rows, actual)
@@ -159,7 +184,7 @@ class ShardReader:
         self.verify(table, key)
         path = self.shard_path(table, key)
         try:
-            return pq.read_table(path, columns=list(columns) if columns else None)
+            return pq.read_table(self.arrow_source(table, key), columns=list(columns) if columns else None)
         except (OSError, pa.ArrowException) as error:
             raise ShardError(f"{path}: unreadable Parquet ({error})") from error
 
@@ -175,16 +200,18 @@ class ShardReader:
 
     def keys_on_disk(self, table: str) -> list[str]:
         """Keys of every shard file present for ``table``, sorted."""
-        folder = self.root / table
-        if not folder.is_dir():
-            return []
-        return sorted(path.stem for path in folder.glob("*.parquet"))
+        return self.files.names(table, ".parquet")
+
+    def arrow_source(self, table: str, key: str) -> Any:
+        """A shard's file for pyarrow's readers: its path, or an open file of the object store."""
+        if not self.files.remote:
+            return self.shard_path(table, key)
+        return pa.BufferReader(self.files.read_bytes(f"{table}/{key}.parquet"))
 
     # -- manifests ---------------------------------------------------------
     def read_manifest(self, pipeline: str) -> dict[str, Any] | None:
         """The pipeline's manifest, or None when there is none or it is unreadable."""
-        path = self.manifest_path(pipeline)
         try:
-            return json.loads(path.read_text())
+            return json.loads(self.files.read_bytes(f"manifests/{pipeline}.json"))
         except (FileNotFoundError, ValueError):
             return None

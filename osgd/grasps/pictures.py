@@ -70,15 +70,14 @@ def _model_grasps(store: ShardStore, model_id: str) -> pa.Table:
 
 def _stability(store: ShardStore, model_id: str, grasp_ids: np.ndarray) -> list[str]:
     """"stable", "unstable" or "not checked" per grasp, from ``<root>/checks``."""
-    folder = store.root / "checks"
-    files = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
-    if not files:
+    keys = store.keys_on_disk("checks")
+    if not keys:
         raise FileNotFoundError(
-            f"no checks table in {folder}: run `osgd check` first, or colour by task (--color-by task)"
+            f"no checks table in {store.root / 'checks'}: run `osgd check` first, or colour by task (--color-by task)"
         )
     verdict: dict[int, bool] = {}
-    for file in files:
-        checks = pq.read_table(file, columns=["model_id", "grasp_id", "stable"])
+    for key in keys:
+        checks = pq.read_table(store.arrow_source("checks", key), columns=["model_id", "grasp_id", "stable"])
         checks = checks.filter(pc.equal(checks.column("model_id"), model_id))
         verdict.update(zip(checks.column("grasp_id").to_pylist(), checks.column("stable").to_pylist(), strict=True))
     return [

@@ -300,7 +300,8 @@ class ModelsStage(Stage):
             notes += [found["note"]] if found.get("note") else []
 
         preset = decomposition.resolve_preset(item.payload["decomposition"], model.category)
-        compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, store.root / "cache" / "decompositions")
+        cache = store.local_folder("cache/decompositions")
+        compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, cache)
         notes += compound.notes
         properties = category_properties(model.category)
         if checked.is_closed:
