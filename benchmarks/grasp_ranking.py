@@ -1,0 +1,131 @@
+"""Where a detector's top-1 grasp lands, under several ways of ranking its candidates (issue #15).
+
+mAP-G counts a detection only when its top-1 grasp matches one of its
+object's ground-truth grasps (``togcrf.metrics``). This script runs a TOG
+checkpoint on test samples, takes every detection that claims an object
+with grasps (same category, IoU > 0.5, best-scored first), and reports for
+each ranking of the 196 candidates the share whose first candidate matches
+a ground-truth grasp of the object, beside the share where any of the top 5
+or any candidate at all does (the ceilings of the ranking):
+
+- ``stability``: P(stable), the detector's own ranking;
+- ``smooth-cells``: P(stable) averaged over the 3 x 3 cells around each
+  candidate, same anchor angle (edges average what exists);
+- ``smooth-cells-angles``: the 3 x 3 cells and the two neighbouring anchor
+  angles.
+
+    python benchmarks/grasp_ranking.py runs/cpu-recipe/tog/checkpoint.pt --data data --pipeline recipe \
+        --max-samples 100 [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from itertools import islice
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from osgd.contract.samples import iter_samples, sample_shards
+from togcrf.anchors import ANCHOR_ANGLES, GRID
+from togcrf.checkpoint import load_checkpoint
+from togcrf.data import depth_to_tensor
+from togcrf.evaluate import run_model
+from togcrf.metrics import Detections, GroundTruth, box_iou, grasp_match_matrix
+
+#: IoU a detection needs with an object of its category to claim it (mAP's rule).
+CLAIM_IOU = 0.5
+
+
+def neighbourhood_mean(stability: np.ndarray, angle_radius: int) -> np.ndarray:
+    """P(stable) averaged over the 3 x 3 cells (and ``angle_radius`` anchor angles, cyclic) around each candidate.
+
+    Parameters
+    ----------
+    stability : (K,) float, K = GRID * GRID * 4 in candidate order
+
+    Returns
+    -------
+    (K,) float
+    """
+    angles = len(ANCHOR_ANGLES)
+    grid = stability.reshape(GRID, GRID, angles)
+    padded = np.pad(grid, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
+    stacked = []
+    for row in range(3):
+        for column in range(3):
+            window = padded[row:row + GRID, column:column + GRID]
+            stacked.extend(np.roll(window, shift, axis=2) for shift in range(-angle_radius, angle_radius + 1))
+    return np.nanmean(np.stack(stacked), axis=0).reshape(-1)
+
+
+RANKINGS = {
+    "stability": lambda stability: stability,
+    "smooth-cells": lambda stability: neighbourhood_mean(stability, 0),
+    "smooth-cells-angles": lambda stability: neighbourhood_mean(stability, 1),
+}
+
+
+def claimed_objects(detections: Detections, truth: GroundTruth) -> list[tuple[int, int]]:
+    """(detection, object) pairs: each object with grasps claimed by its best-scored overlapping detection."""
+    iou = box_iou(detections.boxes, truth.boxes)
+    pairs, taken = [], set()
+    for detection in np.argsort(-detections.scores, kind="stable"):
+        same = (truth.categories == detections.categories[detection]) & (iou[detection] > CLAIM_IOU)
+        free = [index for index in np.nonzero(same)[0] if index not in taken]
+        if not free:
+            continue
+        target = max(free, key=lambda index: iou[detection, index])
+        taken.add(target)
+        if np.any(truth.grasp_objects == target):
+            pairs.append((int(detection), int(target)))
+    return pairs
+
+
+def tally(detections: Detections, truth: GroundTruth, counts: dict[str, int]) -> None:
+    """Add one image's hits of every ranking to ``counts``."""
+    for detection, target in claimed_objects(detections, truth):
+        matches = grasp_match_matrix(detections.grasps[detection],
+                                     truth.grasp_rectangles[truth.grasp_objects == target]).any(axis=1)
+        stability = detections.grasp_stability[detection]
+        counts["objects"] += 1
+        counts["any candidate"] += int(matches.any())
+        for name, rank in RANKINGS.items():
+            order = np.argsort(-rank(stability), kind="stable")
+            counts[name] += int(matches[order[0]])
+            counts[f"{name} top5"] += int(matches[order[:5]].any())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", type=Path)
+    parser.add_argument("--data", type=Path, default=Path("data"))
+    parser.add_argument("--pipeline", default=None)
+    parser.add_argument("--split", default="test")
+    parser.add_argument("--max-samples", type=int, default=100)
+    parser.add_argument("--json", type=Path, default=None, help="also write the shares here")
+    arguments = parser.parse_args()
+    model, config = load_checkpoint(arguments.checkpoint, device="cpu")
+    model.eval()
+    counts: dict[str, int] = {"objects": 0, "any candidate": 0} | {
+        key: 0 for name in RANKINGS for key in (name, f"{name} top5")}
+    samples = iter_samples(arguments.data, split=arguments.split,
+                           shards=sample_shards(arguments.data, arguments.pipeline))
+    for sample in islice(samples, arguments.max_samples):
+        image, scale = depth_to_tensor(sample.depth, config.get("image_size"))
+        tally(run_model(model, image, scale), GroundTruth.from_sample(sample), counts)
+    objects = max(counts["objects"], 1)
+    shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}
+    print(f"{counts['objects']} claimed objects with grasps; share whose top-1 (top-5) grasp matches one of theirs:")
+    for name, share in shares.items():
+        print(f"  {name:28s} {share:5.1f} %")
+    if arguments.json:
+        arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "objects": counts["objects"],
+                                              "shares_percent": shares}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    main()
