@@ -18,7 +18,8 @@ The data dir is a folder, or a prefix of an object store (``s3://...``,
 atomic: bytes go to a temporary file in the same folder, are
 fsynced, then ``os.replace``-d onto the final name, so no partial file ever
 carries a final name. In an object store each file is one whole upload,
-there are no locks (the driver hands out each item once) and no leftovers. A per-shard ``fcntl`` lock keeps two processes on the
+there are no locks (the driver hands out each item once) and no leftovers.
+In a folder, a per-shard ``fcntl`` lock keeps two processes on the
 same data dir from building the same shard twice; the atomic replace keeps
 them from corrupting it even without the lock. Lock files are removed as
 their lock is let go, and :meth:`ShardStore.clean_leftovers` removes the
