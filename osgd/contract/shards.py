@@ -116,16 +116,27 @@ class ShardReader:
         """Whether a shard's Parquet file exists (complete or not)."""
         return self.files.exists(f"{table}/{key}.parquet")
 
-    def _content(self, table: str, key: str) -> tuple[str, Path | pa.BufferReader]:
-        """The sha256 of a shard's bytes, and the file or its bytes for :func:`stored_key`."""
+    def _content(self, table: str, key: str) -> tuple[str, Path | bytes]:
+        """The sha256 of a shard's bytes, and the file (in a folder) or its bytes (in an object store)."""
         if not self.files.remote:
             path = self.shard_path(table, key)
             return file_sha256(path), path
         data = self.files.read_bytes(f"{table}/{key}.parquet")
-        return hashlib.sha256(data).hexdigest(), pa.BufferReader(data)
+        return hashlib.sha256(data).hexdigest(), data
 
     # -- reading and verifying ---------------------------------------------
     def verify(self, table: str, key: str, expected_sha256: str | None = None) -> ShardRecord:
+        """Check that a shard is complete and intact (see :meth:`_verified`).
+
+        Raises
+        ------
+        ShardError
+            Naming the file and what is wrong with it.
+        """
+        return self._verified(table, key, expected_sha256)[0]
+
+    def _verified(self, table: str, key: str, expected_sha256: str | None = None
+                  ) -> tuple[ShardRecord, Path | pa.BufferReader]:
         """Check that a shard is complete and intact.
 
         Parameters
@@ -160,10 +171,11 @@ class ShardReader:
             raise ShardError(f"{path}: checksum {actual[:12]} disagrees with recorded {recorded[:12]}")
         if expected_sha256 is not None and actual != expected_sha256:
             raise ShardError(f"{path}: checksum {actual[:12]} disagrees with the manifest's {expected_sha256[:12]}")
-        stored = stored_key(content, str(path))
+        source = content if isinstance(content, Path) else pa.BufferReader(content)
+        stored = stored_key(source, str(path))
         if stored != key:
             raise ShardError(f"{path}: holds the shard of key {stored[:12] or '(none)'}, not of its file name")
-        return ShardRecord(table, key, item_id, rows, actual)
+        return ShardRecord(table, key, item_id, rows, actual), source
 
     def is_done(self, table: str, key: str, expected_sha256: str | None = None) -> bool:
         """Whether :meth:`verify` passes."""
@@ -181,10 +193,10 @@ class ShardReader:
         ShardError
             If the shard is missing, incomplete or corrupt.
         """
-        self.verify(table, key)
+        _, source = self._verified(table, key)  # read once: an object store's bytes serve both
         path = self.shard_path(table, key)
         try:
-            return pq.read_table(self.arrow_source(table, key), columns=list(columns) if columns else None)
+            return pq.read_table(source, columns=list(columns) if columns else None)
         except (OSError, pa.ArrowException) as error:
             raise ShardError(f"{path}: unreadable Parquet ({error})") from error
 
@@ -201,12 +213,6 @@ class ShardReader:
     def keys_on_disk(self, table: str) -> list[str]:
         """Keys of every shard file present for ``table``, sorted."""
         return self.files.names(table, ".parquet")
-
-    def arrow_source(self, table: str, key: str) -> Any:
-        """A shard's file for pyarrow's readers: its path, or an open file of the object store."""
-        if not self.files.remote:
-            return self.shard_path(table, key)
-        return pa.BufferReader(self.files.read_bytes(f"{table}/{key}.parquet"))
 
     # -- manifests ---------------------------------------------------------
     def read_manifest(self, pipeline: str) -> dict[str, Any] | None:

@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from osgd.contract.schemas import mesh_from_arrow, vectors_from_arrow
 from osgd.contract.taxonomy import PARTS, TASK_COLOURS, TASKS
@@ -77,7 +76,7 @@ def _stability(store: ShardStore, model_id: str, grasp_ids: np.ndarray) -> list[
         )
     verdict: dict[int, bool] = {}
     for key in keys:
-        checks = pq.read_table(store.arrow_source("checks", key), columns=["model_id", "grasp_id", "stable"])
+        checks = store.read("checks", key, columns=["model_id", "grasp_id", "stable"])
         checks = checks.filter(pc.equal(checks.column("model_id"), model_id))
         verdict.update(zip(checks.column("grasp_id").to_pylist(), checks.column("stable").to_pylist(), strict=True))
     return [
