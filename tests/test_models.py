@@ -371,6 +371,58 @@ def test_thin_preset_keeps_fork_tines_apart_and_caches(tmp_path):
     assert json.loads(decomposition.description_json(thin.description))["parameters"]["threshold"] == 0.02
     assert decomposition.resolve_preset("auto", "fork") == "thin"
     assert decomposition.resolve_preset("auto", "hammer") == "fast"
+    assert decomposition.resolve_preset("auto", "fork", user_mesh=True) == "scan"
+
+
+def test_repair_closes_holes_and_merges_split_vertices():
+    box = trimesh.creation.box(extents=[0.1, 0.05, 0.02])
+    split_vertices = box.vertices[box.faces].reshape(-1, 3)  # every face with its own three vertices
+    split_faces = np.arange(len(split_vertices)).reshape(-1, 3)
+    for vertices, faces, holes in ((box.vertices, box.faces[1:], 1), (split_vertices, split_faces[2:], 1),
+                                   (box.vertices, box.faces, 0)):
+        repaired = decomposition.repair_for_decomposition(vertices, faces)
+        closed = trimesh.Trimesh(repaired.vertices, repaired.faces, process=False)
+        assert repaired.watertight and closed.is_watertight and closed.is_winding_consistent
+        assert repaired.holes_closed == holes
+        assert closed.volume == pytest.approx(0.1 * 0.05 * 0.02, rel=1e-9)  # the fans face outwards
+
+
+def _scanned_comb(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """An 18 cm comb (a fork's tines: 3 mm wide, 3 mm apart) as a scan: remeshed to 5 mm edges, noised by
+    0.2 mm, 2 % of its faces gone; and a point in each gap between the tines."""
+    from shapely.geometry import box  # noqa: PLC0415 - trimesh's extrusion needs shapely
+    from shapely.ops import unary_union  # noqa: PLC0415
+
+    outline = unary_union([box(0, 0, 0.12, 0.021)] + [box(0.11, 0.006 * i, 0.18, 0.006 * i + 0.003) for i in range(4)])
+    solid = trimesh.creation.extrude_polygon(outline, 0.004)
+    vertices, faces = trimesh.remesh.subdivide_to_size(solid.vertices, solid.faces, max_edge=0.005, max_iter=20)
+    vertices = vertices + rng.normal(0.0, 0.0002, vertices.shape)
+    faces = faces[rng.random(len(faces)) > 0.02]
+    gaps = np.array([[0.15, 0.006 * i + 0.0045, 0.002] for i in range(3)])
+    return trimesh.Trimesh(vertices, faces, process=False), gaps
+
+
+def _covered(point: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray]]) -> bool:
+    """Whether some convex part holds the point."""
+    for part_vertices, part_faces in parts:
+        part = trimesh.Trimesh(part_vertices, part_faces, process=False)
+        offsets = np.einsum("ij,ij->i", part.triangles[:, 0], part.face_normals)
+        if np.all(part.face_normals @ point <= offsets + 1e-6):
+            return True
+    return False
+
+
+def test_scan_preset_repairs_a_scan_and_keeps_the_gaps_between_tines(tmp_path):
+    scan, gaps = _scanned_comb(np.random.default_rng(3))
+    assert not scan.is_watertight
+    result = decomposition.decompose(scan.vertices, scan.faces, "scan", tmp_path)
+    description = json.loads(decomposition.description_json(result.description))
+    assert description["repair"]["watertight"] and description["repair"]["holes_closed"] > 0
+    assert description["parameters"]["preprocess_mode"] == "off" and not result.notes
+    assert not any(_covered(gap, result.parts) for gap in gaps)
+    assert decomposition.decompose(scan.vertices, scan.faces, "scan", tmp_path).cached
+    # the preset procedural tools get fills every gap: one hull
+    assert all(_covered(gap, decomposition.decompose(scan.vertices, scan.faces, "fast").parts) for gap in gaps)
 
 
 # -- the stage -------------------------------------------------------------------------------

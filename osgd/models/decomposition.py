@@ -13,13 +13,22 @@ into one hull unless the threshold is at most 0.02):
   threshold). Thin parts that must stay apart: fork tines.
 - ``fine``: coacd's default threshold 0.05.
 - ``hull``: no coacd, the convex hull of the whole mesh (quick tests).
-- ``auto`` (the stage default) picks ``thin`` for the categories in
-  :data:`THIN_CATEGORIES` and ``fast`` for the others.
+- ``scan``: for users' meshes (scans, CAD): the mesh is repaired first
+  (:func:`repair_for_decomposition`: duplicate vertices merged, every hole
+  closed by a fan of triangles), then cut at threshold 0.02 without coacd's
+  remeshing when the repair made it watertight, and remeshed at cells of
+  :data:`SCAN_CELL` otherwise.
+- ``auto`` (the stage default) picks ``scan`` for users' meshes, ``thin``
+  for the categories in :data:`THIN_CATEGORIES` and ``fast`` for the others.
 
-Every preset uses ``preprocess_mode="auto"``: coacd remeshes a mesh only when
-it is not a 2-manifold (most authored models are surface soups, where this
-is faster *and* better than cutting the soup directly), and leaves the
-watertight procedural meshes alone.
+The other presets use ``preprocess_mode="auto"``: coacd remeshes a mesh only
+when it is not a 2-manifold (most authored models are surface soups, where
+this is faster *and* better than cutting the soup directly), and leaves the
+watertight procedural meshes alone. Why scans need their own preset
+(measured by ``benchmarks/bench_decomposition.py``, docs/models.md): coacd's
+own test finds a noisy scan not manifold even when it is watertight, and its
+remesh at 50 cells along the longest side (4 mm on a 20 cm fork) merges the
+tines and fills a wrench's jaws.
 
 Cache: ``<cache_dir>/<key>.npz`` where ``key`` is the sha256 of the mesh's
 vertex and face bytes, the coacd version and *every* coacd parameter
@@ -83,7 +92,15 @@ PRESETS: Final[dict[str, CoacdParameters | None]] = {
     "thin": CoacdParameters(threshold=0.02, mcts_iterations=60),
     "fine": CoacdParameters(threshold=0.05),
     "hull": None,
+    "scan": CoacdParameters(threshold=0.02, mcts_iterations=60, preprocess_mode="off"),
 }
+
+#: Cell size of coacd's manifold remesh of a scan that stays open after its repair, m.
+SCAN_CELL: Final[float] = 0.0015
+#: Bounds of that remesh's resolution (cells along the longest side): coacd's default, and a cost cap.
+SCAN_RESOLUTION: Final[tuple[int, int]] = (50, 200)
+#: Version of the ``scan`` preset's repair; in the payload of users' models, so a change rebuilds them.
+SCAN_REPAIR_VERSION: Final[int] = 1
 
 #: Categories whose thin parts need the ``thin`` preset under ``auto``.
 THIN_CATEGORIES: Final[frozenset[str]] = frozenset({"fork"})
@@ -92,8 +109,8 @@ THIN_CATEGORIES: Final[frozenset[str]] = frozenset({"fork"})
 PRESET_NAMES: Final[tuple[str, ...]] = ("auto", *PRESETS)
 
 
-def resolve_preset(preset: str, category: str) -> str:
-    """The concrete preset for ``category`` (``auto`` resolved).
+def resolve_preset(preset: str, category: str, user_mesh: bool = False) -> str:
+    """The concrete preset for ``category`` (``auto`` resolved; ``scan`` for a user's mesh).
 
     Raises
     ------
@@ -101,10 +118,108 @@ def resolve_preset(preset: str, category: str) -> str:
         For an unknown preset name.
     """
     if preset == "auto":
+        if user_mesh:
+            return "scan"
         return "thin" if category in THIN_CATEGORIES else "fast"
     if preset not in PRESETS:
         raise ValueError(f"unknown decomposition preset {preset!r}; expected one of {list(PRESET_NAMES)}")
     return preset
+
+
+@dataclass(frozen=True)
+class Repaired:
+    """A mesh made ready for coacd by :func:`repair_for_decomposition`.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+        Duplicates merged; otherwise the input's, in its frame and units.
+    faces : (F, 3) int64
+        The input's faces, then the fans that close its holes.
+    holes_closed : int
+    watertight : bool
+        Every edge shared by exactly two faces, in opposite directions.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    holes_closed: int
+    watertight: bool
+
+
+def _hole_loops(faces: np.ndarray) -> list[list[int]]:
+    """The holes of a mesh: loops of boundary edges (an edge whose reverse no face has), in face order.
+
+    Where two holes touch at a vertex, the walk splits them into separate loops; a boundary
+    chain that does not close (a non-manifold edge) is left alone.
+    """
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).tolist()
+    present = set(map(tuple, edges))
+    successors: dict[int, list[int]] = {}
+    for start, end in edges:
+        if (end, start) not in present:
+            successors.setdefault(start, []).append(end)
+    loops = []
+    while successors:
+        path = [next(iter(successors))]
+        position = {path[0]: 0}
+        while path:
+            following = successors.get(path[-1])
+            if not following:
+                break
+            vertex = following.pop()
+            if not following:
+                del successors[path[-1]]
+            if vertex in position:  # a loop closes: cut it off the path
+                cut = position[vertex]
+                loops.append(path[cut:])
+                for dropped in path[cut + 1:]:
+                    del position[dropped]
+                path = path[:cut + 1]
+                continue
+            position[vertex] = len(path)
+            path.append(vertex)
+    return [loop for loop in loops if len(loop) >= 3]
+
+
+def repair_for_decomposition(vertices: np.ndarray, faces: np.ndarray) -> Repaired:
+    """Merge duplicate vertices and close every hole with a fan of triangles.
+
+    A scan's holes (where the sensor saw nothing) and the seams of a mesh
+    stored with split vertices keep it from being a closed surface, and
+    coacd then remeshes it coarsely. Each fan runs against its hole's
+    boundary edges, so the closed surface keeps one winding.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    faces : (F, 3) int
+    """
+    mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
+    mesh.merge_vertices()
+    merged = np.asarray(mesh.faces, np.int64)
+    loops = _hole_loops(merged)
+    fans = [[loop[0], loop[index + 1], loop[index]] for loop in loops for index in range(1, len(loop) - 1)]
+    closed = np.concatenate([merged, np.asarray(fans, np.int64).reshape(-1, 3)])
+    result = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64), closed, process=False)
+    return Repaired(np.asarray(result.vertices, np.float64), closed, len(loops),
+                    bool(result.is_watertight and result.is_winding_consistent))
+
+
+def scan_parameters(repaired: Repaired) -> CoacdParameters:
+    """The ``scan`` preset's coacd parameters for a repaired mesh.
+
+    Watertight: no remesh (coacd's own test would remesh a noisy scan). Still
+    open: coacd's remesh, at cells of :data:`SCAN_CELL` within :data:`SCAN_RESOLUTION`.
+    """
+    base = PRESETS["scan"]
+    assert base is not None
+    if repaired.watertight:
+        return base
+    longest = float(np.ptp(repaired.vertices, axis=0).max())
+    low, high = SCAN_RESOLUTION
+    resolution = int(np.clip(np.ceil(longest / SCAN_CELL), low, high))
+    return dataclasses.replace(base, preprocess_mode="on", preprocess_resolution=resolution)
 
 
 def _coacd_version() -> str:
@@ -255,10 +370,17 @@ def decompose(
     if preset not in PRESETS:
         raise ValueError(f"unknown decomposition preset {preset!r}; expected one of {list(PRESETS)}")
     parameters = PRESETS[preset]
+    repair: dict[str, Any] = {}
+    if preset == "scan":
+        repaired = repair_for_decomposition(vertices, faces)
+        vertices, faces, parameters = repaired.vertices, repaired.faces, scan_parameters(repaired)
+        repair = {"repair": {"holes_closed": repaired.holes_closed, "watertight": repaired.watertight,
+                             "version": SCAN_REPAIR_VERSION}}
     description: dict[str, Any] = {
         "method": "convex_hull" if parameters is None else "coacd",
         "preset": preset,
         "parameters": parameters.as_dict() if parameters is not None else {},
+        **repair,
     }
     if parameters is not None:
         description["coacd_version"] = _coacd_version()

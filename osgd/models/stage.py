@@ -81,8 +81,10 @@ class ModelsStageParams(StageParams):
         json_schema_extra={"location": True},
         description="Folder of users' meshes, each with a <stem>.toml sidecar; empty: none.",
     )
-    decomposition: Literal["auto", "fast", "thin", "fine", "hull"] = Field(
-        default="auto", description="Convex decomposition preset (osgd.models.decomposition); auto: per category."
+    decomposition: Literal["auto", "fast", "thin", "fine", "hull", "scan"] = Field(
+        default="auto",
+        description="Convex decomposition preset (osgd.models.decomposition); auto: scan for users' meshes, "
+        "else per category.",
     )
 
 
@@ -209,6 +211,7 @@ class ModelsStage(Stage):
                     "mesh": mesh_path.name,
                     "files": _hashes(files, base),
                     "automatic_parts": parts.VERSION,
+                    "scan_repair": decomposition.SCAN_REPAIR_VERSION,
                 }
                 items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
         return items
@@ -299,7 +302,7 @@ class ModelsStage(Stage):
             face_parts, found = _user_parts(mesh, model.category, face_parts)
             notes += [found["note"]] if found.get("note") else []
 
-        preset = decomposition.resolve_preset(item.payload["decomposition"], model.category)
+        preset = decomposition.resolve_preset(item.payload["decomposition"], model.category, model.user_mesh)
         cache = store.local_folder("cache/decompositions")
         compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, cache)
         notes += compound.notes
