@@ -341,7 +341,7 @@ def main() -> int:
     rows = print_projection(figures, scale, written)
     check = projected_seconds(figures, 1000, 2, scale)
     print(f"check: pipelines/default.toml (1,000 scenes) on 2 cores projects to {_duration(check)} "
-          "(README: about 8 minutes from a fresh clone, install included)")
+          "(README: about 19 minutes from a fresh clone, install included)")
     if arguments.json:
         _write_json(arguments.json, builds, measured, figures, rows)
     print(f"load average now {os.getloadavg()[0]:.2f}")
