@@ -37,6 +37,7 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
 from osgd.contract.taxonomy import CATEGORIES  # noqa: E402
+from osgd.grasps.geometry import convex_planes  # noqa: E402
 from osgd.models import decomposition, procedural  # noqa: E402
 from osgd.models.stage import item_rng  # noqa: E402
 
@@ -62,12 +63,6 @@ def scans(mesh: trimesh.Trimesh, rng: np.random.Generator) -> dict[str, tuple[tr
     return {"as built": (truth, truth), "scan": (scan, truth), "scan with holes": (holes, truth)}
 
 
-def _inside_part(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    part = trimesh.Trimesh(vertices, faces, process=False)
-    offsets = np.einsum("ij,ij->i", part.triangles[:, 0], part.face_normals)
-    return np.all(points @ part.face_normals.T <= offsets[None, :] + 1e-9, axis=1)
-
-
 def volumes(truth: trimesh.Trimesh, parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[float, float]:
     """(excess, missing) volume of a compound against the true solid, as shares of the solid's volume."""
     rng = np.random.default_rng(0)
@@ -75,8 +70,8 @@ def volumes(truth: trimesh.Trimesh, parts: list[tuple[np.ndarray, np.ndarray]]) 
     points = rng.uniform(low, high, (VOLUME_POINTS, 3))
     solid = truth.contains(points)
     covered = np.zeros(len(points), bool)
-    for vertices, faces in parts:
-        covered |= _inside_part(points, vertices, faces)
+    for normals, offsets in convex_planes(parts):
+        covered |= np.all(points @ normals.T <= offsets[None, :] + 1e-9, axis=1)
     return float((covered & ~solid).sum() / solid.sum()), float((solid & ~covered).sum() / solid.sum())
 
 

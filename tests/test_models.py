@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from osgd.contract.schemas import MODELS, mesh_from_arrow
 from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
+from osgd.grasps.geometry import convex_planes
 from osgd.models import decomposition
 from osgd.models.categories import CATEGORY_PROPERTIES
 from osgd.models.osgd_import import blender_to_obj, list_model_folders, load_osgd_model, read_annotations
@@ -404,12 +405,7 @@ def _scanned_comb(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray
 
 def _covered(point: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray]]) -> bool:
     """Whether some convex part holds the point."""
-    for part_vertices, part_faces in parts:
-        part = trimesh.Trimesh(part_vertices, part_faces, process=False)
-        offsets = np.einsum("ij,ij->i", part.triangles[:, 0], part.face_normals)
-        if np.all(part.face_normals @ point <= offsets + 1e-6):
-            return True
-    return False
+    return any(np.all(normals @ point <= offsets + 1e-6) for normals, offsets in convex_planes(parts))
 
 
 def test_scan_preset_repairs_a_scan_and_keeps_the_gaps_between_tines(tmp_path):
