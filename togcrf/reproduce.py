@@ -261,6 +261,8 @@ def reproduce_command(
     batch_size: Annotated[int | None, typer.Option(help="Override the batch size.")] = None,
     warmup_steps: Annotated[int | None, typer.Option(help="Override the learning-rate warm-up steps.")] = None,
     lr: Annotated[float | None, typer.Option(help="Override the base learning rate.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Override the DataLoader worker processes (0: load in the training process).")] = None,
     time_budget: Annotated[float | None, typer.Option(
         help="Override the minutes of training per model (0: none, the epochs decide).")] = None,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
@@ -271,7 +273,7 @@ def reproduce_command(
     try:
         chosen = resolve_scale(scale)
         overrides = {"epochs": epochs, "backbone": backbone, "batch_size": batch_size, "warmup_steps": warmup_steps,
-                     "lr": lr}
+                     "lr": lr, "workers": workers}
         chosen = replace(chosen, **{key: value for key, value in overrides.items() if value is not None})
         for name, value in (("image_size", image_size), ("max_samples", max_samples),
                             ("eval_max_samples", eval_max_samples), ("time_budget_minutes", time_budget)):
