@@ -7,6 +7,13 @@ section 2), and the ratio is printed. Target (issue #6): under 0.5 s per
 scene per core on average, so that the paper's 8,000 scenes take under 30
 minutes on 2 cores.
 
+Then the same scenes again with each convex part colliding as its reduced
+hull of ``--max-hull-vertices`` corners (``scenes.max_hull_vertices``,
+issue #22): the time ratio, the hulls' corners and shrink, and, for both
+runs side by side, the piles' statistics (contacts measured on the stored
+parts, top-down overlap and occlusion on the meshes) and the deepest
+interpenetration of the stored parts per pile.
+
 It then prints where the stage's time goes (cProfile over the first run):
 the share of the attempts that were thrown away, creating the bodies, the
 per-step blow-up test and the physics steps.
@@ -37,9 +44,12 @@ from typing import Any
 
 import numpy as np
 
+from osgd.physics import reduced_hull
 from osgd.scenes import drop
-from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene
+from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, Release, generate_scene, stored_penetration
 from osgd.scenes.params import ScenesStageParams
+from osgd.scenes.statistics import StackingSummary, scene_statistics, summarize_statistics
+from osgd.scenes.views import load_models
 from osgd.store import ShardStore
 
 
@@ -56,9 +66,9 @@ def load_pool(data_dir: Path | None) -> tuple[ModelPool, str]:
     return ModelPool(table.to_pylist()), f"{table.num_rows} models from {data_dir}"
 
 
-def run(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> dict[str, float]:
-    """Drop ``scenes`` scenes serially; times in wall seconds, steps simulated."""
-    seconds, steps, sim_times, attempts = [], [], [], []
+def run(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> dict[str, Any]:
+    """Drop ``scenes`` scenes serially; times in wall seconds, steps simulated, the kept scene rows."""
+    seconds, steps, sim_times, attempts, rows = [], [], [], [], []
     rejections: Counter = Counter()
     for index in range(scenes):
         start = time.perf_counter()
@@ -66,6 +76,7 @@ def run(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> d
         seconds.append(time.perf_counter() - start)
         rejections.update(result.rejections)
         if result.row is not None:
+            rows.append(result.row)
             steps.append(result.row["sim_steps"])
             sim_times.append(result.row["sim_time"])
             attempts.append(result.row["attempts"])
@@ -78,7 +89,68 @@ def run(pool: ModelPool, params: ScenesStageParams, seed: int, scenes: int) -> d
         "attempts": float(np.mean(attempts)) if attempts else 0.0,
         "accepted": float(len(steps)),
         "rejections": dict(sorted(rejections.items())),
+        "rows": rows,
     }
+
+
+def hull_figures(pool: ModelPool, max_vertices: int) -> str:
+    """Corners per convex part before and after :func:`osgd.physics.reduced_hull`, and its shrink."""
+    before, after, shrink = [], [], []
+    for row in pool.rows:
+        for part in row["convex_parts"]:
+            vertices = np.asarray(part["vertices"], dtype=np.float64).reshape(-1, 3)
+            corners, _, reach = reduced_hull(vertices, max_vertices)
+            before.append(len(vertices))
+            after.append(len(corners))
+            shrink.append(reach)
+    return (f"{len(before)} convex parts: corners {np.median(before):.0f} median, {max(before)} max -> "
+            f"{np.median(after):.0f} median, {max(after)} max; the part beyond the reduced hull's planes "
+            f"{1000 * np.median(shrink):.2f} mm median, {1000 * np.percentile(shrink, 90):.2f} mm p90, "
+            f"{1000 * max(shrink):.2f} mm max")
+
+
+def penetration_figures(pool: ModelPool, rows: list[dict[str, Any]]) -> str:
+    """The deepest interpenetration of the stored parts per kept pile (objects, floor, walls)."""
+    index = {str(row["model_id"]): number for number, row in enumerate(pool.rows)}
+    depths = []
+    for row in rows:
+        releases = [Release(index[obj["model_id"]], np.asarray(obj["quaternion"]), np.zeros(2))
+                    for obj in row["objects"]]
+        poses = [(np.asarray(obj["position"]), np.asarray(obj["quaternion"])) for obj in row["objects"]]
+        depths.append(1000 * stored_penetration(pool, releases, poses, ScenesStageParams())[0])
+    return (f"{np.median(depths):.2f} mm median, {np.percentile(depths, 90):.2f} mm p90, {max(depths):.2f} mm max"
+            if depths else "no piles")
+
+
+def pile_figures(data_dir: Path | None, rows: list[dict[str, Any]]) -> StackingSummary | None:
+    """The stacking statistics of kept scene rows (``None`` for the test fixtures, which have no data dir)."""
+    if data_dir is None or not rows:
+        return None
+    ids = {obj["model_id"] for row in rows for obj in row["objects"]}
+    models = load_models(ShardStore(data_dir), ids, ["model_id", "vertices", "faces", "convex_parts", "mass",
+                                                      "center_of_mass", "inertia", "friction"])
+    return summarize_statistics([scene_statistics(row, models) for row in rows])
+
+
+def compare_hulls(pool: ModelPool, data_dir: Path | None, seed: int, scenes: int, max_vertices: int,
+                  stored: dict[str, Any]) -> None:
+    """The at-rest run again with reduced hulls; times, hulls and pile statistics beside the stored parts'."""
+    hulls = run(pool, ScenesStageParams(max_hull_vertices=max_vertices), seed, scenes)
+    print(f"reduced hulls of {max_vertices} corners: {hull_figures(pool, max_vertices)}")
+    print(f"  {hulls['seconds_per_scene']:.3f} s per scene per core (median {hulls['median_seconds']:.3f}, "
+          f"p90 {hulls['p90_seconds']:.3f}), {hulls['steps_per_scene']:.0f} steps per accepted scene, "
+          f"{hulls['attempts']:.2f} attempts, rejections {hulls['rejections']}")
+    print(f"  ratio stored parts / reduced hulls (wall time per scene): "
+          f"{stored['seconds_per_scene'] / hulls['seconds_per_scene']:.2f}")
+    names = ("touching_share", "lying_on_share", "off_floor_share", "overlapping_share", "occluded_share",
+             "mean_occlusion")
+    figures = [pile_figures(data_dir, stored["rows"]), pile_figures(data_dir, hulls["rows"])]
+    if figures[0] is not None and figures[1] is not None:
+        print(f"  piles ({figures[0].objects} / {figures[1].objects} objects), stored parts / reduced hulls: "
+              + ", ".join(f"{name.removesuffix('_share')} {getattr(figures[0], name):.2f} / "
+                          f"{getattr(figures[1], name):.2f}" for name in names))
+    for label, rows in (("stored parts", stored["rows"]), ("reduced hulls", hulls["rows"])):
+        print(f"  interpenetration of the stored parts per pile, {label}: {penetration_figures(pool, rows)}")
 
 
 #: Functions whose cumulative time the profile reports, by label.
@@ -132,6 +204,8 @@ def main() -> None:
                              "(default .bench/osgd-render, shared with bench_render.py) and stack those")
     parser.add_argument("--scenes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-hull-vertices", type=int, default=32,
+                        help="corners of the reduced hulls compared with the stored parts (0: no comparison)")
     arguments = parser.parse_args()
     if arguments.osgd_models is not None:
         from bench_render import ROOT, osgd_pipeline  # noqa: PLC0415 - the same small pipeline of the authors' models
@@ -157,6 +231,9 @@ def main() -> None:
     print(f"ratio at rest / fixed 3 s (wall time per scene): {ratio:.2f}")
     hours_8000 = 8000 * at_rest["seconds_per_scene"] / 2 / 3600
     print(f"8,000 scenes on 2 cores: about {hours_8000 * 60:.1f} minutes (target: under 30)")
+    if arguments.max_hull_vertices > 0:
+        compare_hulls(pool, arguments.data_dir, arguments.seed, arguments.scenes, arguments.max_hull_vertices,
+                      at_rest)
     where_time_goes(pool, ScenesStageParams(), arguments.seed, arguments.scenes)
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024

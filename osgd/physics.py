@@ -18,6 +18,14 @@ they are written as one OBJ file with one ``o`` object per part, which
 pybullet loads as a compound of convex hulls. (A plain ``GEOM_MESH`` from
 vertices on a dynamic body would be the convex hull of the whole mesh, and
 ``createCollisionShapeArray`` takes no vertex arrays.)
+
+A part of many vertices makes every contact query slow (Bullet's support
+function visits each vertex). With ``max_hull_vertices``, each such part
+collides as :func:`reduced_hull`: the hull of a few of its corners, inside
+the part. Bodies then rest up to the part's ``shrink`` deeper in each
+other than their stored parts would; the scenes stage judges the settled
+pile's interpenetration on the stored parts
+(:func:`osgd.scenes.drop.stored_penetration`).
 """
 
 from __future__ import annotations
@@ -76,6 +84,65 @@ def write_compound_obj(convex_parts: list[tuple[np.ndarray, np.ndarray]], path: 
         offset += len(vertices)
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def reduced_hull(vertices: np.ndarray, max_vertices: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The hull of at most ``max_vertices`` well-spread corners of a convex part.
+
+    Farthest-point sampling on the part's hull corners, from the corner
+    farthest from their mean: each next corner is the one farthest from
+    those taken. The result lies inside the part; ``shrink`` says how far
+    the part reaches beyond it. A part already that small, or whose chosen
+    corners lie in one plane, is returned as its own hull.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+        A convex part's vertices, metres.
+    max_vertices : int
+        Most corners of the result (at least 4).
+
+    Returns
+    -------
+    corners : (C, 3) float64
+    faces : (F, 3) int64
+        Triangles of the hull of ``corners``.
+    shrink : float
+        The farthest any corner of the part lies beyond a face plane of the
+        result, metres (0 for a part returned as its own hull).
+    """
+    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
+
+    points = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    try:
+        corners = points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):
+        return points, np.zeros((0, 3), dtype=np.int64), 0.0
+    if len(corners) <= max(max_vertices, 4):
+        return (*_hull_mesh(corners), 0.0)
+    centre = corners.mean(axis=0)
+    chosen = [int(np.argmax(np.einsum("ij,ij->i", corners - centre, corners - centre)))]
+    distance = np.einsum("ij,ij->i", corners - corners[chosen[0]], corners - corners[chosen[0]])
+    while len(chosen) < max_vertices:
+        chosen.append(int(np.argmax(distance)))
+        offset = corners - corners[chosen[-1]]
+        distance = np.minimum(distance, np.einsum("ij,ij->i", offset, offset))
+    try:
+        reduced = ConvexHull(corners[chosen])
+    except (QhullError, ValueError):  # the chosen corners lie in one plane: keep the part
+        return (*_hull_mesh(corners), 0.0)
+    shrink = float(np.max(corners @ reduced.equations[:, :3].T + reduced.equations[:, 3]))
+    return (*_hull_mesh(corners[chosen]), max(shrink, 0.0))
+
+
+def _hull_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The corners of the convex hull of ``points`` and its triangles indexing them."""
+    from scipy.spatial import ConvexHull  # noqa: PLC0415
+
+    hull = ConvexHull(points)
+    index = np.full(len(points), -1, dtype=np.int64)
+    index[hull.vertices] = np.arange(len(hull.vertices))
+    return points[hull.vertices], index[hull.simplices]
 
 
 def _cell_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -139,6 +206,7 @@ def create_object_body(
     quaternion: np.ndarray | None = None,
     *,
     mass: float | None = None,
+    max_hull_vertices: int = 0,
 ) -> ObjectBody:
     """Create a dynamic body for one row of the ``models`` table.
 
@@ -156,6 +224,9 @@ def create_object_body(
         Mesh-frame orientation in the world, (x, y, z, w) (default: identity).
     mass : float, optional
         Override the model's mass, kg (0 makes the body static).
+    max_hull_vertices : int
+        Above 0: each convex part of more corners collides as its
+        :func:`reduced_hull` of this many (0: the parts as stored).
 
     Returns
     -------
@@ -165,9 +236,12 @@ def create_object_body(
     if not len(model["convex_parts"]):
         raise ValueError(f"model {model['model_id']}: no convex parts to collide with")
     # One compound file per model and process; later bodies of the model reuse it.
-    obj_path = _obj_folder() / f"{model['model_id']}.obj"
+    obj_path = _obj_folder() / f"{model['model_id']}-{max_hull_vertices}.obj"
     if not obj_path.exists():
-        write_compound_obj([_cell_mesh(part["vertices"], part["faces"]) for part in model["convex_parts"]], obj_path)
+        parts = [_cell_mesh(part["vertices"], part["faces"]) for part in model["convex_parts"]]
+        if max_hull_vertices > 0:
+            parts = [reduced_hull(vertices, max_hull_vertices)[:2] for vertices, _ in parts]
+        write_compound_obj(parts, obj_path)
     shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(obj_path), physicsClientId=client)
     if shape < 0:
         raise RuntimeError(f"model {model['model_id']}: pybullet could not create its collision shape")

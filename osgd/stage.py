@@ -46,16 +46,21 @@ class StageParams(BaseModel):
     shard keys and manifests, so moving a folder recomputes nothing and
     manifests hold no absolute paths. The stage must then put the content
     hash of whatever it reads from there into the item payload.
+
+    A field whose ``json_schema_extra`` holds ``{"omit_default": True}`` is
+    left out of shard keys and manifests while it has its default value: an
+    option added later, whose default does what the stage did before it,
+    leaves the keys of the shards built before it unchanged.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     def key_dict(self) -> dict[str, Any]:
-        """The parameters as JSON-able values, location fields left out."""
+        """The parameters as JSON-able values, location fields and omitted defaults left out."""
         dumped = self.model_dump(mode="json")
         for name, info in type(self).model_fields.items():
-            extra = info.json_schema_extra
-            if isinstance(extra, dict) and extra.get("location"):
+            extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+            if extra.get("location") or (extra.get("omit_default") and getattr(self, name) == info.default):
                 dumped.pop(name, None)
         return dumped
 

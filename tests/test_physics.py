@@ -5,10 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pybullet
 import pytest
+import trimesh
 from helpers import fixture_models, hammer_parts, model_row
+from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from osgd.physics import create_object_body, get_mesh_pose, physics_client, set_mesh_pose
+from osgd.physics import create_object_body, get_mesh_pose, physics_client, reduced_hull, set_mesh_pose
 
 
 def test_mesh_pose_round_trips_through_the_inertial_frame() -> None:
@@ -84,3 +86,48 @@ def test_a_dropped_body_comes_to_rest_on_the_floor() -> None:
         position, _ = get_mesh_pose(body)
     # The block is 4 cm tall and centred on its mesh origin.
     assert position[2] == pytest.approx(0.02, abs=0.005)
+
+
+def _rough_cylinder(rng: np.random.Generator, points: int = 3000) -> np.ndarray:
+    """A scanned-looking part: a 12 cm bar of radius 1 cm, its surface points jittered by 0.1 mm."""
+    angle = rng.uniform(0, 2 * np.pi, points)
+    along = rng.uniform(-0.06, 0.06, points)
+    surface = np.column_stack([along, 0.01 * np.cos(angle), 0.01 * np.sin(angle)])
+    return surface + rng.normal(0, 1e-4, surface.shape)
+
+
+def test_reduced_hull_keeps_few_of_the_parts_own_corners_and_says_how_far_it_shrank() -> None:
+    rng = np.random.default_rng(5)
+    part = Rotation.random(random_state=rng).apply(_rough_cylinder(rng)) + np.array([0.3, -0.2, 0.1])
+    corners, faces, shrink = reduced_hull(part, 32)
+    assert len(corners) == 32
+    assert faces.max() < len(corners)
+    # its corners are corners of the part, so it lies inside the part
+    assert all(np.min(np.linalg.norm(part - corner, axis=1)) == 0 for corner in corners)
+    # shrink: how far the part reaches beyond the reduced hull's planes, less than the 1 cm radius
+    reduced = ConvexHull(corners)
+    assert np.max(part @ reduced.equations[:, :3].T + reduced.equations[:, 3]) == pytest.approx(shrink)
+    assert 0 < shrink < 0.01
+    assert 0.5 * ConvexHull(part).volume < reduced.volume < ConvexHull(part).volume
+
+
+def test_reduced_hull_leaves_a_small_part_as_it_is() -> None:
+    cube = np.array([[x, y, z] for x in (0, 0.02) for y in (0, 0.03) for z in (0, 0.01)], dtype=float)
+    corners, faces, shrink = reduced_hull(cube, 32)
+    assert shrink == 0.0
+    assert sorted(map(tuple, corners)) == sorted(map(tuple, cube))
+    assert len(faces) == 12
+
+
+def test_a_body_of_reduced_hulls_lies_within_the_body_of_the_stored_parts() -> None:
+    rng = np.random.default_rng(2)
+    bar = trimesh.convex.convex_hull(_rough_cylinder(rng))
+    row = model_row("bar", "screwdriver", [("handle", bar)])
+    with physics_client() as client:
+        stored = create_object_body(client, row, np.array([0.0, 0.0, 1.0]))
+        reduced = create_object_body(client, row, np.array([0.0, 0.0, 1.0]), max_hull_vertices=16)
+        low, high = (np.array(corner) for corner in pybullet.getAABB(stored.body_id, physicsClientId=client))
+        inner_low, inner_high = (np.array(corner)
+                                 for corner in pybullet.getAABB(reduced.body_id, physicsClientId=client))
+    assert np.all(inner_low >= low - 1e-6) and np.all(inner_high <= high + 1e-6)
+    assert np.all(inner_high - inner_low > high - low - 0.008)

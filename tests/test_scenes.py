@@ -23,6 +23,7 @@ from osgd.scenes.drop import (
     draw_releases,
     generate_scene,
     simulate_drop,
+    stored_penetration,
 )
 from osgd.scenes.params import ScenesStageParams
 from osgd.scenes.pictures import show_scene
@@ -199,6 +200,45 @@ def test_deepest_penetration_measures_overlap() -> None:
     # 1 cm of overlap, plus up to a millimetre of pybullet's collision margin on each hull.
     assert 0.009 < depth < 0.013
     assert set(pair) == {first.body_id, second.body_id}
+
+
+def test_stored_penetration_measures_overlap_of_the_stored_parts_and_with_the_floor() -> None:
+    block = fixture_models()[2]  # 12 x 4 x 4 cm, centred on its mesh origin
+    pool = ModelPool([block])
+    releases = [Release(0, np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(2))] * 2
+    level = np.array([0.0, 0.0, 0.0, 1.0])
+    stacked = [(np.array([0.0, 0.0, 0.5]), level), (np.array([0.0, 0.0, 0.53]), level)]
+    depth, pair = stored_penetration(pool, releases, stacked, ScenesStageParams())
+    assert 0.009 < depth < 0.013
+    assert pair == (0, 1)
+    sunk = [(np.array([0.0, 0.0, 0.015]), level), (np.array([0.3, 0.0, 0.02]), level)]
+    depth, pair = stored_penetration(pool, releases, sunk, ScenesStageParams())
+    assert 0.004 < depth < 0.007
+    assert pair == (0, -1)
+
+
+def test_piles_dropped_with_reduced_hulls_are_judged_on_the_stored_parts() -> None:
+    # Hulls of 5 corners stand in for the boxes and bars while dropping: they let them sink into each other,
+    # and only the check on the stored boxes rejects that.
+    pool = ModelPool(fixture_models())
+    params = ScenesStageParams(max_hull_vertices=5, min_objects=4, max_objects=4, max_attempts=4)
+    result = generate_scene(pool, params, 0, 0)
+    assert result.rejections["interpenetration"] > 0
+    if result.row is not None:
+        poses = [(np.asarray(obj["position"]), np.asarray(obj["quaternion"])) for obj in result.row["objects"]]
+        index = {row["model_id"]: number for number, row in enumerate(pool.rows)}
+        releases = [Release(index[obj["model_id"]], np.asarray(obj["quaternion"]), np.zeros(2))
+                    for obj in result.row["objects"]]
+        assert stored_penetration(pool, releases, poses, params)[0] <= params.penetration_tolerance
+
+
+def test_the_hull_option_keeps_old_scene_keys_until_it_is_set() -> None:
+    assert "max_hull_vertices" not in ScenesStageParams().key_dict()
+    assert ScenesStageParams(max_hull_vertices=32).key_dict()["max_hull_vertices"] == 32
+    plain = {shard.key for shard in _plan(ScenesStageParams(count=50))}
+    reduced = {shard.key for shard in _plan(ScenesStageParams(count=50, max_hull_vertices=32))}
+    assert plain == {shard.key for shard in _plan(ScenesStageParams(count=50, max_hull_vertices=0))}
+    assert not plain & reduced
 
 
 def test_category_weights_steer_the_draw() -> None:

@@ -217,7 +217,8 @@ def _release(client: int, pool: ModelPool, release: Release, objects: list[Objec
     top = max((pybullet.getAABB(body.body_id, physicsClientId=client)[1][2] for body in objects), default=0.0)
     centre_z = max(params.drop_height, top + params.drop_clearance + half_height)
     target = np.array([release.xy[0], release.xy[1], centre_z])
-    return create_object_body(client, pool.rows[release.model_index], target - box_centre, release.quaternion)
+    return create_object_body(client, pool.rows[release.model_index], target - box_centre, release.quaternion,
+                              max_hull_vertices=params.max_hull_vertices)
 
 
 def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesStageParams,
@@ -282,6 +283,10 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
         if not reason:
             reason, detail = _final_verdict(client, objects, params, settled, f"{step * dt:.2f}", mover)
         poses = [get_mesh_pose(body) for body in objects]
+    if not reason and params.max_hull_vertices > 0:
+        depth, pair = stored_penetration(pool, releases, poses, params)
+        if depth > params.penetration_tolerance:
+            reason, detail = "interpenetration", f"stored parts of objects {pair} overlap by {depth * 1000:.1f} mm"
     positions = np.array([pose[0] for pose in poses], dtype=np.float64).reshape(-1, 3)
     quaternions = np.array([pose[1] for pose in poses], dtype=np.float64).reshape(-1, 4)
     if reason:
@@ -298,7 +303,7 @@ def _next_body(client: int, pool: ModelPool, releases: Sequence[Release], object
         return _release(client, pool, releases[index], objects, params)
     position, quaternion = initial_poses[index]
     return create_object_body(client, pool.rows[releases[index].model_index], np.asarray(position),
-                              np.asarray(quaternion))
+                              np.asarray(quaternion), max_hull_vertices=params.max_hull_vertices)
 
 
 def _runaway(client: int, objects: Sequence[ObjectBody], params: ScenesStageParams, step: int) -> tuple[str, str]:
@@ -401,6 +406,39 @@ def deepest_penetration(client: int, object_ids: Sequence[int]) -> tuple[float, 
         body_a, body_b, distance = contact[1], contact[2], contact[8]
         if (body_a in objects or body_b in objects) and -distance > deepest:
             deepest, pair = -distance, (body_a, body_b)
+    return deepest, pair
+
+
+def stored_penetration(pool: ModelPool, releases: Sequence[Release],
+                       poses: Sequence[tuple[np.ndarray, np.ndarray]], params: ScenesStageParams,
+                       ) -> tuple[float, tuple[int, int]]:
+    """The deepest interpenetration of the objects' stored convex parts at the given poses.
+
+    The objects are placed as static bodies beside the floor and walls of
+    :func:`build_world` in a fresh physics client; pybullet's closest points
+    at distance 0 give the overlaps (a simulation with reduced hulls, whose
+    contacts say nothing about the stored parts, is judged this way).
+
+    Returns
+    -------
+    depth : float
+        Metres (0 when nothing overlaps).
+    pair : (int, int)
+        Indices of the deepest pair in ``releases``; -1 stands for the floor or a wall.
+    """
+    pybullet = pybullet_module()
+    deepest, pair = 0.0, (-1, -1)
+    with physics_client() as client:
+        world = build_world(client, params)
+        bodies = [create_object_body(client, pool.rows[release.model_index], np.asarray(position),
+                                     np.asarray(quaternion), mass=0.0).body_id
+                  for release, (position, quaternion) in zip(releases, poses, strict=True)]
+        for index, body in enumerate(bodies):
+            others = [(other_index, bodies[other_index]) for other_index in range(index + 1, len(bodies))]
+            for other_index, other in [*others, *((-1, wall) for wall in world)]:
+                for point in pybullet.getClosestPoints(body, other, 0.0, physicsClientId=client):
+                    if -point[8] > deepest:
+                        deepest, pair = -point[8], (index, other_index)
     return deepest, pair
 
 
