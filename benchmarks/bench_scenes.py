@@ -46,9 +46,9 @@ import numpy as np
 
 from osgd.physics import reduced_hull
 from osgd.scenes import drop
-from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, Release, generate_scene, stored_penetration
+from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene, stored_penetration
 from osgd.scenes.params import ScenesStageParams
-from osgd.scenes.statistics import StackingSummary, scene_statistics, summarize_statistics
+from osgd.scenes.statistics import STATISTICS_COLUMNS, StackingSummary, scene_statistics, summarize_statistics
 from osgd.scenes.views import load_models
 from osgd.store import ShardStore
 
@@ -111,13 +111,12 @@ def hull_figures(pool: ModelPool, max_vertices: int) -> str:
 
 def penetration_figures(pool: ModelPool, rows: list[dict[str, Any]]) -> str:
     """The deepest interpenetration of the stored parts per kept pile (objects, floor, walls)."""
-    index = {str(row["model_id"]): number for number, row in enumerate(pool.rows)}
+    models = {str(row["model_id"]): row for row in pool.rows}
     depths = []
     for row in rows:
-        releases = [Release(index[obj["model_id"]], np.asarray(obj["quaternion"]), np.zeros(2))
-                    for obj in row["objects"]]
         poses = [(np.asarray(obj["position"]), np.asarray(obj["quaternion"])) for obj in row["objects"]]
-        depths.append(1000 * stored_penetration(pool, releases, poses, ScenesStageParams())[0])
+        depths.append(1000 * stored_penetration([models[obj["model_id"]] for obj in row["objects"]], poses,
+                                                ScenesStageParams())[0])
     return (f"{np.median(depths):.2f} mm median, {np.percentile(depths, 90):.2f} mm p90, {max(depths):.2f} mm max"
             if depths else "no piles")
 
@@ -127,8 +126,7 @@ def pile_figures(data_dir: Path | None, rows: list[dict[str, Any]]) -> StackingS
     if data_dir is None or not rows:
         return None
     ids = {obj["model_id"] for row in rows for obj in row["objects"]}
-    models = load_models(ShardStore(data_dir), ids, ["model_id", "vertices", "faces", "convex_parts", "mass",
-                                                      "center_of_mass", "inertia", "friction"])
+    models = load_models(ShardStore(data_dir), ids, STATISTICS_COLUMNS)
     return summarize_statistics([scene_statistics(row, models) for row in rows])
 
 

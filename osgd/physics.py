@@ -115,11 +115,12 @@ def reduced_hull(vertices: np.ndarray, max_vertices: int) -> tuple[np.ndarray, n
 
     points = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     try:
-        corners = points[ConvexHull(points).vertices]
+        hull = ConvexHull(points)
     except (QhullError, ValueError):
         return points, np.zeros((0, 3), dtype=np.int64), 0.0
+    corners = points[hull.vertices]
     if len(corners) <= max(max_vertices, 4):
-        return (*_hull_mesh(corners), 0.0)
+        return (*_hull_mesh(hull), 0.0)
     centre = corners.mean(axis=0)
     chosen = [int(np.argmax(np.einsum("ij,ij->i", corners - centre, corners - centre)))]
     distance = np.einsum("ij,ij->i", corners - corners[chosen[0]], corners - corners[chosen[0]])
@@ -130,19 +131,16 @@ def reduced_hull(vertices: np.ndarray, max_vertices: int) -> tuple[np.ndarray, n
     try:
         reduced = ConvexHull(corners[chosen])
     except (QhullError, ValueError):  # the chosen corners lie in one plane: keep the part
-        return (*_hull_mesh(corners), 0.0)
+        return (*_hull_mesh(hull), 0.0)
     shrink = float(np.max(corners @ reduced.equations[:, :3].T + reduced.equations[:, 3]))
-    return (*_hull_mesh(corners[chosen]), max(shrink, 0.0))
+    return (*_hull_mesh(reduced), max(shrink, 0.0))
 
 
-def _hull_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The corners of the convex hull of ``points`` and its triangles indexing them."""
-    from scipy.spatial import ConvexHull  # noqa: PLC0415
-
-    hull = ConvexHull(points)
-    index = np.full(len(points), -1, dtype=np.int64)
+def _hull_mesh(hull: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The corners of a :class:`scipy.spatial.ConvexHull` and its triangles indexing them."""
+    index = np.full(len(hull.points), -1, dtype=np.int64)
     index[hull.vertices] = np.arange(len(hull.vertices))
-    return points[hull.vertices], index[hull.simplices]
+    return hull.points[hull.vertices], index[hull.simplices]
 
 
 def _cell_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:

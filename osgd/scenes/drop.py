@@ -284,7 +284,7 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
             reason, detail = _final_verdict(client, objects, params, settled, f"{step * dt:.2f}", mover)
         poses = [get_mesh_pose(body) for body in objects]
     if not reason and params.max_hull_vertices > 0:
-        depth, pair = stored_penetration(pool, releases, poses, params)
+        depth, pair = stored_penetration([pool.rows[release.model_index] for release in releases], poses, params)
         if depth > params.penetration_tolerance:
             reason, detail = "interpenetration", f"stored parts of objects {pair} overlap by {depth * 1000:.1f} mm"
     positions = np.array([pose[0] for pose in poses], dtype=np.float64).reshape(-1, 3)
@@ -409,9 +409,8 @@ def deepest_penetration(client: int, object_ids: Sequence[int]) -> tuple[float, 
     return deepest, pair
 
 
-def stored_penetration(pool: ModelPool, releases: Sequence[Release],
-                       poses: Sequence[tuple[np.ndarray, np.ndarray]], params: ScenesStageParams,
-                       ) -> tuple[float, tuple[int, int]]:
+def stored_penetration(models: Sequence[Mapping[str, Any]], poses: Sequence[tuple[np.ndarray, np.ndarray]],
+                       params: ScenesStageParams) -> tuple[float, tuple[int, int]]:
     """The deepest interpenetration of the objects' stored convex parts at the given poses.
 
     The objects are placed as static bodies beside the floor and walls of
@@ -419,20 +418,28 @@ def stored_penetration(pool: ModelPool, releases: Sequence[Release],
     at distance 0 give the overlaps (a simulation with reduced hulls, whose
     contacts say nothing about the stored parts, is judged this way).
 
+    Parameters
+    ----------
+    models : sequence of mapping
+        The pile's ``models`` rows, one per object (:data:`MODEL_COLUMNS`).
+    poses : sequence of (position (3,), quaternion (4,))
+        Mesh-frame poses, one per object.
+    params : ScenesStageParams
+        The floor and walls.
+
     Returns
     -------
     depth : float
         Metres (0 when nothing overlaps).
     pair : (int, int)
-        Indices of the deepest pair in ``releases``; -1 stands for the floor or a wall.
+        Indices of the deepest pair of objects; -1 stands for the floor or a wall.
     """
     pybullet = pybullet_module()
     deepest, pair = 0.0, (-1, -1)
     with physics_client() as client:
         world = build_world(client, params)
-        bodies = [create_object_body(client, pool.rows[release.model_index], np.asarray(position),
-                                     np.asarray(quaternion), mass=0.0).body_id
-                  for release, (position, quaternion) in zip(releases, poses, strict=True)]
+        bodies = [create_object_body(client, model, np.asarray(position), np.asarray(quaternion), mass=0.0).body_id
+                  for model, (position, quaternion) in zip(models, poses, strict=True)]
         for index, body in enumerate(bodies):
             others = [(other_index, bodies[other_index]) for other_index in range(index + 1, len(bodies))]
             for other_index, other in [*others, *((-1, wall) for wall in world)]:

@@ -94,7 +94,7 @@ class ScenesStageParams(StageParams):
         0, ge=0, json_schema_extra={"omit_default": True},
         description="above 0: while dropping, a convex part of more corners collides as the hull of this many "
                     "of its corners (osgd.physics.reduced_hull; issue #22: 32 makes stacking the authors' models "
-                    "1.6x faster), and the settled pile's interpenetration is judged on the stored parts; "
+                    "1.5x faster), and the settled pile's interpenetration is judged on the stored parts; "
                     "0: the parts as stored",
     )
 

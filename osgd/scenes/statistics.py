@@ -30,6 +30,10 @@ from osgd.physics import create_object_body, physics_client, pybullet_module
 from osgd.scenes.views import cast_view, load_models, posed_meshes
 from osgd.store import ShardStore
 
+#: The ``models`` columns :func:`scene_statistics` reads: the bodies' and the meshes'.
+STATISTICS_COLUMNS = ("model_id", "vertices", "faces", "convex_parts", "mass", "center_of_mass", "inertia",
+                      "friction")
+
 #: Objects closer than this touch, metres (pybullet rests bodies a fraction of a millimetre apart or in).
 CONTACT_DISTANCE = 0.002
 #: A contact normal steeper than this (cosine to world z) means one object lies on the other.
@@ -208,8 +212,7 @@ def stacking_statistics(store: ShardStore, records: Sequence[ShardRecord], limit
         chosen = np.linspace(0, len(scenes) - 1, limit).round().astype(int)
         scenes = [scenes[index] for index in sorted(set(chosen.tolist()))]
     model_ids = {obj["model_id"] for row in scenes for obj in row["objects"]}
-    models = load_models(store, model_ids, ["model_id", "vertices", "faces", "convex_parts", "mass",
-                                            "center_of_mass", "inertia", "friction"]) if model_ids else {}
+    models = load_models(store, model_ids, STATISTICS_COLUMNS) if model_ids else {}
     summary = summarize_statistics([scene_statistics(row, models) for row in scenes])
     return summary, simulation
 
