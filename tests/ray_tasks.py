@@ -7,6 +7,7 @@ module-level function by reference, as the process pool does.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -34,10 +35,22 @@ def fail_on_odd(task: int) -> int:
     return task * task
 
 
-def traced(trace: str, function: Callable[[Any], Any], task: Any) -> Any:
-    """Append ``<node id> <shard key>`` to the file ``trace`` as a build starts, then run it."""
+def traced(trace: str, function: Callable[[Any], Any], task: Any, hold: tuple[str, str] | None = None) -> Any:
+    """Append ``<node id> <shard key> <stage module>`` to the file ``trace`` as a build starts, then run it.
+
+    ``hold`` = (node id, stage module, e.g. ``"osgd.checks"``): a build of that
+    stage on that node stops after its line is written, as if it were a long
+    one, until the node is killed (at most five minutes, then it goes on), so
+    that a test can kill the node in the middle of it whatever the timing.
+    """
     import ray  # noqa: PLC0415
 
+    node = ray.get_runtime_context().get_node_id()
+    module = getattr(task, "stage_ref", "-").split(":")[0]
     with Path(trace).open("a") as handle:
-        handle.write(f"{ray.get_runtime_context().get_node_id()} {getattr(task, 'key', task)}\n")
+        handle.write(f"{node} {getattr(task, 'key', task)} {module}\n")
+    if hold is not None and (node, module) == hold:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
     return function(task)

@@ -256,27 +256,32 @@ def test_the_golden_pipeline_on_ray_gives_the_process_pools_manifest(
     _assert_no_corrupt_shard(tmp_path)
 
 
-def _starts(trace: Path) -> list[tuple[str, str]]:
-    """(node id, shard key) of every build started so far, in order."""
+def _starts(trace: Path, module: str | None = None) -> list[tuple[str, str]]:
+    """(node id, shard key) of every build started so far, in order; only ``module``'s where given."""
     lines = trace.read_text().splitlines() if trace.exists() else []
-    return [(node, key) for node, key in (line.split() for line in lines)]
+    starts = (line.split() for line in lines)
+    return [(node, key) for node, key, stage in starts if module is None or stage == module]
 
 
-def _kill_when_building_there(cluster: Any, node: Any, trace: Path, stage: str, killed: list[str]) -> Any:
-    """An ``on_item`` that kills ``node`` the instant it starts building an item of ``stage``.
+#: The module of the stage whose build a test kills a node in the middle of.
+CHECKS = "osgd.checks.stage"
 
-    Called when the stage's first item is done: it waits for a build that
-    starts on ``node`` after that moment (so the node is surely in the
-    middle of it), kills the node's processes and notes the item's key.
+
+def _kill_when_building_there(cluster: Any, node: Any, trace: Path, killed: list[str]) -> Any:
+    """An ``on_item`` that kills ``node`` once it has started a checks build.
+
+    Called when the first checks item is done: it waits for a checks build
+    on ``node`` to start (:class:`_Traced` holds such a build there until the
+    node dies, so the node is surely in the middle of it), kills the node's
+    processes and notes the item's key.
     """
 
     def on_item(name: str, item: str, status: str) -> None:
-        if name != stage or killed:
+        if name != "checks" or killed:
             return
-        before = len(_starts(trace))
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
-            there = [key for node_id, key in _starts(trace)[before:] if node_id == node.node_id]
+            there = [key for node_id, key in _starts(trace, CHECKS) if node_id == node.node_id]
             if there:
                 cluster.remove_node(node, allow_graceful=False)
                 killed.append(there[0])
@@ -287,13 +292,15 @@ def _kill_when_building_there(cluster: Any, node: Any, trace: Path, stage: str, 
 
 
 class _Traced:
-    """An executor that notes where each build starts (:func:`ray_tasks.traced`)."""
+    """An executor that notes where each build starts (:func:`ray_tasks.traced`) and holds the
+    checks builds on the node ``hold_on`` (a node id) until that node is killed."""
 
-    def __init__(self, inner: RayExecutor, trace: Path) -> None:
-        self.inner, self.trace = inner, trace
+    def __init__(self, inner: RayExecutor, trace: Path, hold_on: str) -> None:
+        self.inner, self.trace, self.hold = inner, trace, (hold_on, CHECKS)
 
     def map_unordered(self, function: Any, tasks: Any) -> Iterator[tuple[int, Any]]:
-        return self.inner.map_unordered(functools.partial(ray_tasks.traced, str(self.trace), function), tasks)
+        traced = functools.partial(ray_tasks.traced, str(self.trace), function, hold=self.hold)
+        return self.inner.map_unordered(traced, tasks)
 
 
 def _run_golden(store: ShardStore, executor: Any, on_item: Any = None) -> list:
@@ -308,8 +315,8 @@ def _run_golden_killing_a_node(cluster: Any, tmp_path: Path, executor: Any) -> t
     cluster.wait_for_nodes()
     trace, killed = tmp_path / "trace.txt", []
     store = ShardStore(tmp_path / "data")
-    reports = _run_golden(store, _Traced(executor, trace),
-                          _kill_when_building_there(cluster, doomed, trace, "checks", killed))
+    reports = _run_golden(store, _Traced(executor, trace, doomed.node_id),
+                          _kill_when_building_there(cluster, doomed, trace, killed))
     return store, trace, killed, reports
 
 
