@@ -130,6 +130,13 @@ def test_depth_normalisation_removes_a_tilted_table():
     assert height[45, 45] == pytest.approx(0.03, abs=2e-4)
     assert height[85, 120] == pytest.approx(0.012, abs=2e-4)
     assert height[5, 5] == 0.0
+    # Before the recipe the height was measured from the median depth: the ramp stays in the input.
+    from_median = normalise_depth(depth.astype(np.float32), "median") * DEPTH_UNIT
+    assert np.ptp(from_median[100:, :]) > 0.03
+    assert np.median(from_median[depth > 0]) == pytest.approx(0.0, abs=1e-6)
+    assert torch.equal(depth_to_tensor(depth, None, "median")[0][0], torch.from_numpy(from_median / DEPTH_UNIT))
+    with pytest.raises(ValueError, match="depth reference 'floor': expected one of table, median"):
+        normalise_depth(depth, "floor")
 
 
 def test_dataset_streams_the_split_with_targets_in_the_network_frame(synthetic_dir):

@@ -92,6 +92,12 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
     assert torch.equal(model.crf.omega.detach(), checkpoint["model"]["crf.omega"])
     with pytest.raises(ValueError, match="cannot resume"):
         train(quick_config(data_dir, run_dir, epochs=3, resume=True, backbone="resnet34"))
+    with pytest.raises(ValueError, match="cannot resume, depth_reference was 'table', now 'median'"):
+        train(quick_config(data_dir, run_dir, epochs=3, resume=True, depth_reference="median"))
+    # A checkpoint written before the depth reference was saved was trained on the table plane.
+    del checkpoint["config"]["depth_reference"]
+    torch.save(checkpoint, run_dir / "checkpoint.pt")
+    assert train(quick_config(data_dir, run_dir, epochs=3, resume=True))["epoch"] == 2
 
 
 def test_init_starts_from_the_weights_of_another_run(data_dir, tmp_path):
@@ -346,7 +352,8 @@ def test_time_budget_ends_the_run_and_resume_does_not_continue_it(data_dir, tmp_
 
 def test_training_options_are_checked(data_dir, tmp_path):
     for change, message in (({"optimizer": "adam"}, "--optimizer"), ({"lr_schedule": "linear"}, "--lr-schedule"),
-                            ({"scale_jitter": 1.5}, "--scale-jitter"), ({"val_samples": 12}, "--val-samples")):
+                            ({"scale_jitter": 1.5}, "--scale-jitter"), ({"val_samples": 12}, "--val-samples"),
+                            ({"depth_reference": "floor"}, "--depth-reference")):
         with pytest.raises(ValueError, match=message):
             train(quick_config(data_dir, tmp_path / "run", max_samples=12, **change))
 

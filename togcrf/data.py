@@ -55,6 +55,11 @@ DEPTH_UNIT = 0.1
 DEFAULT_SCALE_JITTER = 0.1
 
 
+#: What the depth image is measured from (:func:`normalise_depth`): ``"table"``, the fitted table
+#: plane (the CPU recipe, issue #15), or ``"median"``, the image's median depth (before the recipe,
+#: which leaves the camera-tilt ramp of the table in the image).
+DEPTH_REFERENCES = ("table", "median")
+
 #: Pixels closer than the fitted table by more than this are not table (metres, our choice: above the noise).
 TABLE_TOLERANCE = 0.004
 
@@ -106,25 +111,38 @@ def table_depth(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return (1.0 / np.maximum(plane, 1e-6)).astype(np.float32)
 
 
-def normalise_depth(depth: np.ndarray) -> np.ndarray:
-    """Height above the fitted table plane, in units of ``DEPTH_UNIT``.
+def normalise_depth(depth: np.ndarray, reference: str = "table") -> np.ndarray:
+    """Height above the fitted table plane (or the median depth), in units of ``DEPTH_UNIT``.
 
     Parameters
     ----------
     depth : (H, W) float
         Metres, 0 or non-finite = no reading.
+    reference : {"table", "median"}
+        See ``DEPTH_REFERENCES``.
 
     Returns
     -------
     (H, W) float32
-        ``(table - depth) / DEPTH_UNIT`` (:func:`table_depth`); pixels without a reading are 0.
+        ``(table - depth) / DEPTH_UNIT`` (:func:`table_depth`), or ``(median - depth) / DEPTH_UNIT``;
+        pixels without a reading are 0.
+
+    Raises
+    ------
+    ValueError
+        If ``reference`` is not one of ``DEPTH_REFERENCES``.
     """
+    if reference not in DEPTH_REFERENCES:
+        raise ValueError(f"depth reference {reference!r}: expected one of {', '.join(DEPTH_REFERENCES)}")
     depth = np.asarray(depth, dtype=np.float32)
     valid = np.isfinite(depth) & (depth > 0)
     if not valid.any():
         return np.zeros(depth.shape, dtype=np.float32)
-    table = table_depth(depth, valid)
-    height = np.where(valid, (table - depth) / DEPTH_UNIT, 0.0)
+    if reference == "table":
+        base = table_depth(depth, valid)
+    else:
+        base = np.float32(np.median(depth[valid]))
+    height = np.where(valid, (base - depth) / DEPTH_UNIT, 0.0)
     return height.astype(np.float32)
 
 
@@ -158,7 +176,8 @@ def scale_image(image: np.ndarray, scale: float, interpolation: int = cv2.INTER_
     return cv2.warpAffine(image, matrix, size, flags=interpolation, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
-def depth_to_tensor(depth: np.ndarray, image_size: int | None) -> tuple[torch.Tensor, float]:
+def depth_to_tensor(depth: np.ndarray, image_size: int | None, depth_reference: str = "table"
+                    ) -> tuple[torch.Tensor, float]:
     """The network input of a depth map.
 
     Parameters
@@ -167,6 +186,8 @@ def depth_to_tensor(depth: np.ndarray, image_size: int | None) -> tuple[torch.Te
         Metres, 0 = no reading.
     image_size : int or None
         Longer side of the output, pixels; None keeps the size.
+    depth_reference : {"table", "median"}
+        What the height is measured from (``DEPTH_REFERENCES``; the training config's).
 
     Returns
     -------
@@ -176,7 +197,7 @@ def depth_to_tensor(depth: np.ndarray, image_size: int | None) -> tuple[torch.Te
         ``pixels_out = pixels_in * scale``.
     """
     scale = resize_scale(depth.shape, image_size)
-    image = scale_image(normalise_depth(depth), scale)
+    image = scale_image(normalise_depth(depth, depth_reference), scale)
     return torch.from_numpy(np.ascontiguousarray(image))[None], scale
 
 
@@ -355,6 +376,8 @@ class SamplesDataset(Dataset):
         Keep the first this many samples (in shard order) for quick runs.
     scale_jitter : float
         Scale range ``[1 - scale_jitter, 1]`` when augmenting.
+    depth_reference : {"table", "median"}
+        What the input height is measured from (``DEPTH_REFERENCES``).
 
     Raises
     ------
@@ -372,6 +395,7 @@ class SamplesDataset(Dataset):
         seed: int = 0,
         max_samples: int | None = None,
         scale_jitter: float = DEFAULT_SCALE_JITTER,
+        depth_reference: str = "table",
     ) -> None:
         self.data_dir = data_dir if is_uri(data_dir) else Path(data_dir)
         self.pipeline = pipeline
@@ -380,6 +404,7 @@ class SamplesDataset(Dataset):
         self.augment = augment
         self.seed = seed
         self.scale_jitter = scale_jitter
+        self.depth_reference = depth_reference
         self.epoch = 0
         self.shards = sample_shards(self.data_dir, pipeline)
         #: The categories and tasks the shards were labelled with (``osgd.contract.taxonomy.VOCABULARY``).
@@ -431,9 +456,8 @@ class SamplesDataset(Dataset):
             augmentation = Augmentation.draw(rng, self.scale_jitter)
         else:
             augmentation = Augmentation()
-        images, boxes, rectangles = augment(
-            [normalise_depth(sample.depth)], sample.boxes, sample.grasp_rectangles, augmentation, base_scale
-        )
+        height = normalise_depth(sample.depth, self.depth_reference)
+        images, boxes, rectangles = augment([height], sample.boxes, sample.grasp_rectangles, augmentation, base_scale)
         image = torch.from_numpy(np.ascontiguousarray(images[0]))[None]
         targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles))
         return image, targets, sample.sample_id

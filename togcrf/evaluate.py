@@ -96,6 +96,7 @@ def evaluate_model(
     speed_images: int = 10,
     unmatched_task: str = "nearest",
     protocol: str = "ours",
+    depth_reference: str = "table",
 ) -> dict[str, Any]:
     """Table II metrics and speed of a model on samples.
 
@@ -114,6 +115,8 @@ def evaluate_model(
         See :mod:`togcrf.metrics` (Acc-T).
     protocol : {"ours", "lab"}
         The rules of mAP and mAP-G (:mod:`togcrf.metrics`, Protocols).
+    depth_reference : {"table", "median"}
+        Passed to :func:`togcrf.data.depth_to_tensor` (the training config's).
 
     Returns
     -------
@@ -131,7 +134,7 @@ def evaluate_model(
     kept_images: list[torch.Tensor] = []
     model.eval()
     for sample in samples:
-        image, scale = depth_to_tensor(sample.depth, image_size)
+        image, scale = depth_to_tensor(sample.depth, image_size, depth_reference)
         image = image.to(device)
         evaluator.add(run_model(model, image, scale), GroundTruth.from_sample(sample))
         if len(kept_images) < speed_images:
@@ -268,7 +271,8 @@ def evaluate_checkpoint(
         samples = islice(samples, max_samples)
     try:
         result = evaluate_model(model, samples, config.get("image_size"), device=device,
-                                speed_images=speed_images, unmatched_task=unmatched_task, protocol=protocol)
+                                speed_images=speed_images, unmatched_task=unmatched_task, protocol=protocol,
+                                depth_reference=config.get("depth_reference", "table"))
     except ValueError as error:
         raise ValueError(f"{data_dir}: split {split!r}: {error}") from error
     result = {

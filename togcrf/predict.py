@@ -95,12 +95,15 @@ def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None =
     raise KeyError(f"{data_dir}: no sample with id {source!r}")
 
 
-def predict_depth(model: torch.nn.Module, depth: np.ndarray, image_size: int | None, device: str = "cpu"
-                  ) -> Detections:
-    """Detections of a model on a depth image (metres), in the image's pixels."""
+def predict_depth(model: torch.nn.Module, depth: np.ndarray, image_size: int | None, device: str = "cpu",
+                  depth_reference: str = "table") -> Detections:
+    """Detections of a model on a depth image (metres), in the image's pixels.
+
+    ``image_size`` and ``depth_reference`` are the training config's (:func:`togcrf.data.depth_to_tensor`).
+    """
     from togcrf.data import depth_to_tensor  # noqa: PLC0415
 
-    image, scale = depth_to_tensor(depth, image_size)
+    image, scale = depth_to_tensor(depth, image_size, depth_reference)
     model.eval()
     return run_model(model, image.to(device), scale)
 
@@ -305,7 +308,8 @@ def predict_command(
         if sample is not None:
             check_vocabulary(config["vocabulary"], samples_vocabulary(sample_shards(data, pipeline)),
                              str(checkpoint), f"{data}/samples")
-        detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device), min_score)
+        detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device,
+                                                     config.get("depth_reference", "table")), min_score)
         chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
     except (FileNotFoundError, ValueError, KeyError) as error:
         typer.echo(f"error: {error}", err=True)

@@ -242,7 +242,8 @@ def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | No
     sample = next(iter_samples(data_dir, pipeline=pipeline, split="test"), None)
     if sample is None:
         return
-    detections = keep_confident(predict_depth(model, sample.depth, config.get("image_size")), 0.5)
+    detections = keep_confident(predict_depth(model, sample.depth, config.get("image_size"),
+                                                 depth_reference=config.get("depth_reference", "table")), 0.5)
     draw_prediction(sample.depth, detections, path)
 
 

@@ -48,7 +48,7 @@ from torch.utils.data import DataLoader
 
 from togcrf import distributed
 from togcrf.checkpoint import check_vocabulary, current_vocabulary, read_checkpoint, save_checkpoint
-from togcrf.data import SamplesDataset, ShardGroupedSampler, collate
+from togcrf.data import DEPTH_REFERENCES, SamplesDataset, ShardGroupedSampler, collate
 from togcrf.losses import LOSS_KEYS
 from togcrf.model import BACKBONES, MODEL_NAMES, build_model
 
@@ -120,6 +120,9 @@ class TrainConfig:
         to 0 over all epochs' steps, after the warm-up.
     scale_jitter : float
         Augmentation scales are drawn from ``[1 - scale_jitter, 1]``.
+    depth_reference : {"table", "median"}
+        What the input height is measured from (``togcrf.data.DEPTH_REFERENCES``): the
+        fitted table plane (the recipe) or the image's median depth (before it).
     val_samples : int
         Samples at the end of the training split held out for per-epoch
         validation metrics (0: none).
@@ -163,6 +166,7 @@ class TrainConfig:
     optimizer: str = "sgd"
     lr_schedule: str = "step"
     scale_jitter: float = 0.1
+    depth_reference: str = "table"
     val_samples: int = 0
     time_budget_minutes: float | None = None
     init: str | None = None
@@ -183,6 +187,8 @@ class TrainConfig:
             raise ValueError(f"--lr-schedule {self.lr_schedule!r}: expected one of {LR_SCHEDULES}")
         if not 0 <= self.scale_jitter < 1:
             raise ValueError(f"--scale-jitter {self.scale_jitter}: expected a value in [0, 1)")
+        if self.depth_reference not in DEPTH_REFERENCES:
+            raise ValueError(f"--depth-reference {self.depth_reference!r}: expected one of {DEPTH_REFERENCES}")
         if self.val_samples < 0:
             raise ValueError(f"--val-samples {self.val_samples}: expected 0 or more")
 
@@ -276,7 +282,10 @@ def _tensorboard_writer(run_dir: Path):
 
 #: Config entries that must agree between a checkpoint and a run resuming it.
 _RESUME_MUST_MATCH = ("model", "backbone", "image_size", "model_options", "batch_size", "optimizer",
-                      "lr_schedule", "val_samples")
+                      "lr_schedule", "val_samples", "depth_reference")
+
+#: What a checkpoint written before a config entry existed was trained with.
+_BEFORE_IT_WAS_SAVED = {"depth_reference": "table"}  # added 2026-11-25; the table plane since issue #15
 
 
 @dataclass
@@ -312,7 +321,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     distributed.start(context, device)
     dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
                              image_size=config.image_size, augment=config.augment, seed=config.seed,
-                             max_samples=config.max_samples, scale_jitter=config.scale_jitter)
+                             max_samples=config.max_samples, scale_jitter=config.scale_jitter,
+                             depth_reference=config.depth_reference)
     check_vocabulary(current_vocabulary(), dataset.vocabulary, f"the model of this code (--model {config.model})",
                      f"{config.data}/samples")
     if config.val_samples and config.val_samples >= len(dataset):
@@ -360,9 +370,10 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
 def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
     """Load a checkpoint into the run; the first epoch still to train."""
     checkpoint = read_checkpoint(checkpoint_path, run.device)
+    saved = {**_BEFORE_IT_WAS_SAVED, **checkpoint["config"]}
     for key in _RESUME_MUST_MATCH:
-        if checkpoint["config"].get(key) != stored_config.get(key):
-            raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {checkpoint['config'].get(key)!r}, "
+        if saved.get(key) != stored_config.get(key):
+            raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {saved.get(key)!r}, "
                              f"now {stored_config.get(key)!r}")
     run.model.load_state_dict(checkpoint["model"])
     run.optimizer.load_state_dict(checkpoint["optimizer"])
@@ -460,7 +471,7 @@ def validate(run: _Run) -> dict[str, float]:
     from togcrf.evaluate import evaluate_model  # noqa: PLC0415
 
     result = evaluate_model(run.model, run.validation, run.config.image_size, device=str(run.device),
-                            speed_images=0)
+                            speed_images=0, depth_reference=run.config.depth_reference)
     metrics = result["metrics"]
     return {f"val_{name}": float(metrics.get(name, float("nan"))) for name in ("mAP", "mAP-G", "Acc-T top1")}
 
@@ -676,6 +687,9 @@ def register(app: typer.Typer) -> None:
         augment: Annotated[bool, typer.Option(help="Flips, 90-degree turns and scale jitter.")] = _DEFAULTS.augment,
         scale_jitter: Annotated[float, typer.Option(help="Augmentation scales in [1 - this, 1].")] = (
             _DEFAULTS.scale_jitter),
+        depth_reference: Annotated[str, typer.Option(
+            help="Input height above: table (the fitted table plane) or median (the image's median depth).")] = (
+            _DEFAULTS.depth_reference),
         warmup_steps: Annotated[int, typer.Option(help="Linear learning-rate warm-up steps.")] = _DEFAULTS.warmup_steps,
         clip_grad_norm: Annotated[float, typer.Option(help="Gradient-norm clipping (0: off).")] = (
             _DEFAULTS.clip_grad_norm),
@@ -714,6 +728,7 @@ def register(app: typer.Typer) -> None:
             device=device, amp=amp, seed=seed, max_samples=max_samples, workers=workers,
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
+            depth_reference=depth_reference,
             time_budget_minutes=time_budget, init=None if init is None else str(init), split=split)
         report = ProgressReport(out, epochs, time_budget) if distributed.from_environment().main else None
         try:
