@@ -115,7 +115,7 @@ def main() -> None:
                            shards=sample_shards(arguments.data, arguments.pipeline))
     for sample in islice(samples, arguments.max_samples):
         image, scale = depth_to_tensor(sample.depth, config.get("image_size"),
-                                       config.get("depth_reference", "table"))
+                                       config["depth_reference"])
         tally(run_model(model, image, scale), GroundTruth.from_sample(sample), counts)
     objects = max(counts["objects"], 1)
     shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}

@@ -50,7 +50,5 @@ def traced(trace: str, function: Callable[[Any], Any], task: Any, hold: tuple[st
     with Path(trace).open("a") as handle:
         handle.write(f"{node} {getattr(task, 'key', task)} {module}\n")
     if hold is not None and (node, module) == hold:
-        deadline = time.monotonic() + 300
-        while time.monotonic() < deadline:
-            time.sleep(0.1)
+        time.sleep(300)
     return function(task)

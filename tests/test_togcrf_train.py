@@ -97,7 +97,17 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
     # A checkpoint written before the depth reference was saved was trained on the table plane.
     del checkpoint["config"]["depth_reference"]
     torch.save(checkpoint, run_dir / "checkpoint.pt")
+    assert load_checkpoint(run_dir / "checkpoint.pt")[1]["depth_reference"] == "table"
     assert train(quick_config(data_dir, run_dir, epochs=3, resume=True))["epoch"] == 2
+
+
+def test_the_depth_reference_trained_with_is_the_one_a_policy_feeds(data_dir, tmp_path):
+    """A run trained on heights above the median depth is fed that input by the robot's policy too."""
+    from togcrf.robot.policies import model_policy  # noqa: PLC0415
+
+    train(quick_config(data_dir, tmp_path / "median", model="tog", depth_reference="median"))
+    assert load_checkpoint(tmp_path / "median")[1]["depth_reference"] == "median"
+    assert model_policy(tmp_path / "median").depth_reference == "median"
 
 
 def test_init_starts_from_the_weights_of_another_run(data_dir, tmp_path):

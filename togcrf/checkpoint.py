@@ -38,6 +38,10 @@ logger = logging.getLogger(__name__)
 #: The file name of a run dir's checkpoint.
 CHECKPOINT_FILE = "checkpoint.pt"
 
+#: Training config entries added after checkpoints were first written, with what older checkpoints were
+#: trained with: ``depth_reference`` (2026-11-25), the fitted table plane since issue #15.
+CONFIG_ADDED_LATER = {"depth_reference": "table"}
+
 
 def current_vocabulary() -> dict[str, list[str]]:
     """The vocabulary of this code (:data:`osgd.contract.taxonomy.VOCABULARY`) as JSON lists."""
@@ -71,7 +75,7 @@ def save_checkpoint(path: Path, state: Mapping[str, Any], vocabulary: Mapping[st
 
 
 def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict[str, Any]:
-    """The checkpoint's dict, with ``vocabulary`` filled in for old checkpoints.
+    """The checkpoint's dict, with ``vocabulary`` and ``CONFIG_ADDED_LATER`` filled in for old checkpoints.
 
     Raises
     ------
@@ -90,6 +94,7 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
         raise ValueError(f"{path}: not a readable togcrf checkpoint ({first})") from error
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
         raise ValueError(f"{path}: not a togcrf checkpoint (needs 'model' and 'config')")
+    checkpoint["config"] = {**CONFIG_ADDED_LATER, **checkpoint["config"]}
     checkpoint.setdefault("vocabulary", current_vocabulary())
     checkpoint.setdefault("schema_version", SCHEMA_VERSION)
     return checkpoint

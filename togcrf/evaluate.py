@@ -272,7 +272,7 @@ def evaluate_checkpoint(
     try:
         result = evaluate_model(model, samples, config.get("image_size"), device=device,
                                 speed_images=speed_images, unmatched_task=unmatched_task, protocol=protocol,
-                                depth_reference=config.get("depth_reference", "table"))
+                                depth_reference=config["depth_reference"])
     except ValueError as error:
         raise ValueError(f"{data_dir}: split {split!r}: {error}") from error
     result = {

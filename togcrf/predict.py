@@ -309,7 +309,7 @@ def predict_command(
             check_vocabulary(config["vocabulary"], samples_vocabulary(sample_shards(data, pipeline)),
                              str(checkpoint), f"{data}/samples")
         detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device,
-                                                     config.get("depth_reference", "table")), min_score)
+                                                     config["depth_reference"]), min_score)
         chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
     except (FileNotFoundError, ValueError, KeyError) as error:
         typer.echo(f"error: {error}", err=True)

@@ -243,7 +243,7 @@ def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | No
     if sample is None:
         return
     detections = keep_confident(predict_depth(model, sample.depth, config.get("image_size"),
-                                                 depth_reference=config.get("depth_reference", "table")), 0.5)
+                                                 depth_reference=config["depth_reference"]), 0.5)
     draw_prediction(sample.depth, detections, path)
 
 

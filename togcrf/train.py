@@ -284,9 +284,6 @@ def _tensorboard_writer(run_dir: Path):
 _RESUME_MUST_MATCH = ("model", "backbone", "image_size", "model_options", "batch_size", "optimizer",
                       "lr_schedule", "val_samples", "depth_reference")
 
-#: What a checkpoint written before a config entry existed was trained with.
-_BEFORE_IT_WAS_SAVED = {"depth_reference": "table"}  # added 2026-11-25; the table plane since issue #15
-
 
 @dataclass
 class _Run:
@@ -370,7 +367,7 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
 def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
     """Load a checkpoint into the run; the first epoch still to train."""
     checkpoint = read_checkpoint(checkpoint_path, run.device)
-    saved = {**_BEFORE_IT_WAS_SAVED, **checkpoint["config"]}
+    saved = checkpoint["config"]
     for key in _RESUME_MUST_MATCH:
         if saved.get(key) != stored_config.get(key):
             raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {saved.get(key)!r}, "

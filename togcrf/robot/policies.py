@@ -154,13 +154,15 @@ class ModelPolicy:
     min_score: float = 0.5
     min_stability: float = 0.5
     device: str = "cpu"
+    depth_reference: str = "table"
     last_detections: Any = field(default=None, repr=False)
 
     def choose(self, trial: Trial, observation: Observation) -> Choice:
         """Detect, then :func:`togcrf.predict.best_grasp_for_task`."""
         from togcrf.predict import best_grasp_for_task, keep_confident, predict_depth  # noqa: PLC0415
 
-        detections = keep_confident(predict_depth(self.model, observation.depth, self.image_size, self.device),
+        detections = keep_confident(predict_depth(self.model, observation.depth, self.image_size, self.device,
+                                                  self.depth_reference),
                                     self.min_score)
         self.last_detections = detections
         count = len(detections.scores)
@@ -186,5 +188,6 @@ def model_policy(checkpoint: Path, name: str | None = None, *, min_score: float 
     checkpoint = Path(checkpoint)
     run = checkpoint.parent if checkpoint.suffix == ".pt" else checkpoint
     label = name or f"{config.get('model', 'model')}:{run.parent.name}"
-    return ModelPolicy(label, str(checkpoint), model, config.get("image_size"), min_score, min_stability, device)
+    return ModelPolicy(label, str(checkpoint), model, config.get("image_size"), min_score, min_stability, device,
+                       config["depth_reference"])
 
