@@ -8,7 +8,8 @@
 #               `togcrf reproduce --scale SCALE TRAIN_OPTIONS` in its own process group (training, then
 #               evaluation under both protocols)
 #   speed       frames per second at batch 1 and the CRF's share, one model at a time (seed 0)
-#   report      the tables, learning curves, figure 5, a prediction picture, into RESULTS
+#   report      the tables (with several seeds, each model's mean over them too), learning curves, figure 5,
+#               a prediction picture, into RESULTS
 #
 # Each call does what is left and returns within DEADLINE seconds, so that it fits a command limit of ten
 # minutes; call it again until it prints "table-gpu: done". Training runs on in the background between calls
@@ -180,6 +181,11 @@ report() {
     for job in "${JOBS[@]}"; do run_dirs+=("$(job_dir "$job")"); lab_files+=("$(job_dir "$job")/eval-lab.json"); done
     $PYTHON -m togcrf table "${run_dirs[@]}" --out "$RESULTS/table2.json" | tee "$RESULTS/table2.txt"
     $PYTHON -m togcrf table "${lab_files[@]}" --out "$RESULTS/table2-lab.json" | tee "$RESULTS/table2-lab.txt"
+    if printf '%s\n' "${JOBS[@]}" | grep -qv '^0:'; then
+        # several seeds: each model's mean and standard deviation over its seeds
+        $PYTHON -m togcrf table "${run_dirs[@]}" --mean --out "$RESULTS/means.json" | tee "$RESULTS/means.txt"
+        $PYTHON -m togcrf table "${lab_files[@]}" --mean --out "$RESULTS/means-lab.json" | tee "$RESULTS/means-lab.txt"
+    fi
     $PYTHON -m togcrf curves "${run_dirs[@]}" --out "$RESULTS/curves.png"
     for job in "${JOBS[@]}"; do
         local into="$RESULTS/seed$(seed_of "$job")/$(model_of "$job")"

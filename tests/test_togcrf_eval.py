@@ -146,3 +146,40 @@ def test_format_table_and_missing_values() -> None:
     cells = text.splitlines()[2].split()
     assert cells == ["TOG", "50.0", "-", "100.0", "25.0", "0.0", "3.0"]
     assert not math.isnan(row["Acc-T top1"])
+
+
+def _evaluated_run(folder: Path, model: str, seed: int | None, map_percent: float, fps: float | None) -> Path:
+    """A run dir with a hand-made eval.json (the Table II row in percent) and, with a seed, its config.json."""
+    folder.mkdir(parents=True)
+    row = {column: None for column in TABLE_COLUMNS} | {"mAP": map_percent, "mAP-G": map_percent / 4, "fps": fps}
+    (folder / "eval.json").write_text(json.dumps({"model": model, "protocol": "ours", "row": row}))
+    if seed is not None:
+        (folder / "config.json").write_text(json.dumps({"seed": seed, "model": model}))
+    return folder
+
+
+def test_table_names_the_seeds_and_averages_over_them(tmp_path: Path) -> None:
+    """Runs of one model are told apart by their seed; --mean gives each model's mean and sample sd."""
+    runs = [_evaluated_run(tmp_path / "s0" / "tog", "tog", 0, 10.0, 20.0),
+            _evaluated_run(tmp_path / "s1" / "tog", "tog", 1, 14.0, None),
+            _evaluated_run(tmp_path / "s0" / "tog-crfs", "tog-crfs", 0, 12.0, 30.0)]
+    result = CliRunner().invoke(app, ["table", *map(str, runs)])
+    assert result.exit_code == 0, result.output
+    names = [line.split("  ")[0] for line in result.output.strip().splitlines()[2:]]
+    assert names == ["TOG [seed 0]", "TOG [seed 1]", "TOG-CRFs"]
+
+    out = tmp_path / "means.json"
+    result = CliRunner().invoke(app, ["table", *map(str, runs), "--mean", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    lines = result.output.strip().splitlines()[2:]
+    assert lines[0].split()[:6] == ["TOG", "(mean", "of", "2)", "12.0", "3.0"]
+    assert lines[1].split()[:3] == ["sd", f"{math.sqrt(8):.1f}", f"{math.sqrt(8) / 4:.1f}"]
+    means = json.loads(out.read_text())["means"]
+    assert [(entry["name"], entry["runs"], entry["seeds"]) for entry in means] == [("TOG", 2, [0, 1]),
+                                                                                  ("TOG-CRFs", 1, [0])]
+    assert means[0]["mean"]["fps"] == 20.0  # a run without the column does not count towards its mean
+    assert means[0]["mean"]["Acc-T top1"] is None and means[1]["sd"]["mAP"] is None
+    # without a config.json the runs of one model are numbered instead
+    bare = [_evaluated_run(tmp_path / f"bare{index}", "tog", None, 5.0, None) for index in range(2)]
+    result = CliRunner().invoke(app, ["table", *map(str, bare)])
+    assert "TOG [run 1]" in result.output and "TOG [run 2]" in result.output

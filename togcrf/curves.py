@@ -4,7 +4,8 @@
 ``metrics.csv`` (``togcrf.train``) and draws two panels: the total training
 loss and the grasp task loss (left, log scale), and the validation mAP,
 mAP-G and Acc-T top-1 (right, percent; only runs trained with
-``--val-samples``). Each run is one colour, labelled with the last two parts of its run dir.
+``--val-samples``). Each run is one colour, named once under the panels by the last two parts of its run
+dir; each metric is one line style.
 """
 
 from __future__ import annotations
@@ -47,33 +48,44 @@ def read_curves(run_dir: Path) -> dict[str, list[float]]:
 
 
 def draw_curves(run_dirs: list[Path], out: Path) -> Path:
-    """Draw the learning curves of runs into a PNG; returns its path."""
+    """Draw the learning curves of runs into a PNG; returns its path.
+
+    Each run is one colour (named once, in a legend under the panels); each metric is one line style
+    (named in its panel's legend), so that the legends stay short however many runs are drawn.
+    """
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.lines import Line2D  # noqa: PLC0415
 
     figure, (losses, validation) = plt.subplots(1, 2, figsize=(11, 4.2))
+    run_handles = []
     for index, run_dir in enumerate(run_dirs):
         curves = read_curves(run_dir)
-        colour = f"C{index}"
+        colour = f"C{index % 10}"
         name = "/".join(Path(run_dir).parts[-2:])  # run dirs are often OUT/<model>: keep OUT
+        run_handles.append(Line2D([], [], color=colour, label=name))
         epochs = [epoch + 1 for epoch in curves.get("epoch", [])]
         for column, style in LOSS_LINES.items():
             if column in curves:
-                losses.plot(epochs, curves[column], style, color=colour, label=f"{name}: {column}")
+                losses.plot(epochs, curves[column], style, color=colour)
         for column, style in VALIDATION_LINES.items():
             values = curves.get(column, [])
             if values and not all(math.isnan(value) for value in values):
                 validation.plot(epochs, [100 * value for value in values], style, marker="o", markersize=3,
-                                color=colour, label=f"{name}: {column[4:]}")
+                                color=colour)
     losses.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", yscale="log", title="losses")
     validation.set(xlabel="epoch", ylabel="percent", ylim=(0, 100), title="held-out validation slice")
-    for axes in (losses, validation):
+    for axes, lines, strip in ((losses, LOSS_LINES, 0), (validation, VALIDATION_LINES, len("val_"))):
         axes.grid(alpha=0.3)
-        if axes.get_legend_handles_labels()[0]:
-            axes.legend(fontsize=7)
-    figure.tight_layout()
+        if axes.lines:
+            axes.legend(handles=[Line2D([], [], linestyle=style, color="0.3", label=column[strip:])
+                                 for column, style in lines.items()], fontsize=8)
+    columns = min(4, max(1, len(run_handles)))
+    rows = math.ceil(len(run_handles) / columns)
+    figure.legend(handles=run_handles, loc="lower center", ncol=columns, fontsize=8, frameon=False)
+    figure.tight_layout(rect=(0, min(0.4, 0.05 * rows + 0.02), 1, 1))
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=120)
     plt.close(figure)

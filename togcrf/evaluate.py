@@ -3,7 +3,10 @@
 ``togcrf eval CHECKPOINT --data DIR`` runs the model on every sample of the
 split (batch 1), scores it with :mod:`togcrf.metrics` and measures its speed;
 ``togcrf table RUN_DIR...`` prints the rows of several runs side by side, as
-in the paper's Table II (percentages; speed in frames per second).
+in the paper's Table II (percentages; speed in frames per second); runs of
+one model with several seeds are told apart by the seed in the run's
+``config.json``, and ``--mean`` prints each model's mean over its runs with
+the sample standard deviation beneath.
 
 An evaluation JSON (``eval.json`` next to the checkpoint unless ``--out``
 says otherwise) holds ``model``, ``checkpoint``, ``data``, ``pipeline``,
@@ -315,6 +318,83 @@ def format_table(rows: Sequence[tuple[str, dict[str, float | None]]], protocol: 
     return "\n".join(lines)
 
 
+def run_seed(path: Path) -> int | None:
+    """The training seed of an evaluation: ``seed`` of the ``config.json`` beside it (None if there is none).
+
+    Parameters
+    ----------
+    path : Path
+        A run dir, or an evaluation JSON inside one (``eval.json``, ``eval-lab.json``).
+    """
+    path = Path(path)
+    config = (path if path.is_dir() else path.parent) / "config.json"
+    try:
+        seed = json.loads(config.read_text()).get("seed")
+    except (OSError, json.JSONDecodeError):
+        return None
+    return seed if isinstance(seed, int) else None
+
+
+def named_rows(documents: Sequence[dict[str, Any]], seeds: Sequence[int | None],
+               protocols: Sequence[str], mixed: bool) -> list[tuple[str, dict[str, float | None]]]:
+    """One (name, row) per evaluation; a model that appears more than once is named with its seed."""
+    names = [row_name(document) for document in documents]
+    rows = []
+    for index, (document, model, seed, protocol) in enumerate(zip(documents, names, seeds, protocols, strict=True)):
+        name = model
+        if names.count(model) > 1:
+            name += f" [seed {seed}]" if seed is not None else f" [run {index + 1}]"
+        if mixed:
+            name += f" [{protocol}]"
+        rows.append((name, document.get("row") or table_row(document)))
+    return rows
+
+
+def mean_rows(rows: Sequence[tuple[str, dict[str, float | None]]], models: Sequence[str],
+              seeds: Sequence[int | None], sources: Sequence[str]) -> list[dict[str, Any]]:
+    """Each model's mean and sample standard deviation over its runs, in the order models first appear.
+
+    Parameters
+    ----------
+    rows : sequence of (str, dict)
+        Name and :func:`table_row` of each run.
+    models : sequence of str
+        The model each row belongs to (rows of one model are averaged).
+    seeds, sources : sequences
+        Each row's seed and where its evaluation was read, listed with its model's mean.
+
+    Returns
+    -------
+    list of dict
+        ``name``, ``runs`` (how many), ``mean`` and ``sd`` (column -> value; None where no run has the
+        column, sd None for a single run), ``seeds`` and ``sources``.
+    """
+    members: dict[str, list[int]] = {}
+    for index, model in enumerate(models):
+        members.setdefault(model, []).append(index)
+    summaries = []
+    for model, indices in members.items():
+        mean: dict[str, float | None] = {}
+        sd: dict[str, float | None] = {}
+        for column in TABLE_COLUMNS:
+            values = [rows[index][1][column] for index in indices if rows[index][1].get(column) is not None]
+            mean[column] = float(np.mean(values)) if values else None
+            sd[column] = float(np.std(values, ddof=1)) if len(values) > 1 else None
+        summaries.append({"name": model, "runs": len(indices), "mean": mean, "sd": sd,
+                          "seeds": [seeds[index] for index in indices],
+                          "sources": [sources[index] for index in indices]})
+    return summaries
+
+
+def format_mean_table(summaries: Sequence[dict[str, Any]], protocol: str | None = None) -> str:
+    """:func:`mean_rows` as text: each model's mean, then its standard deviation on a line beneath."""
+    lines = []
+    for summary in summaries:
+        lines.append((f"{summary['name']} (mean of {summary['runs']})", summary["mean"]))
+        lines.append(("  sd", summary["sd"]))
+    return format_table(lines, protocol=protocol)
+
+
 def read_evaluation(path: Path) -> dict[str, Any]:
     """An evaluation JSON, from its path or from the run dir that holds ``eval.json``.
 
@@ -386,30 +466,37 @@ def table_command(
     out: Annotated[Path | None, typer.Option(help="Also write the table as JSON here.")] = None,
     mixed: Annotated[bool, typer.Option("--mixed", help="Allow evaluations of different protocols, "
                                                         "each row marked with its own.")] = False,
+    mean: Annotated[bool, typer.Option("--mean", help="One row per model: the mean over its runs (seeds), "
+                                                      "with the sample standard deviation beneath.")] = False,
 ) -> None:
     """Print Table II for several evaluated runs side by side, headed by the protocol that made it."""
-    rows = []
     try:
         documents = [read_evaluation(path) for path in run_dirs]
     except (FileNotFoundError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     protocols = [document_protocol(document) for document in documents]
-    if len(set(protocols)) > 1 and not mixed:
+    if len(set(protocols)) > 1 and not (mixed and not mean):
         listing = "; ".join(f"{path}: {protocol}" for path, protocol in zip(run_dirs, protocols, strict=True))
+        hint = "" if mean else ", or pass --mixed to print each row marked"
         typer.echo(f"error: the evaluations mix protocols ({listing}); evaluate them all with one "
-                   "`togcrf eval --protocol`, or pass --mixed to print each row marked", err=True)
+                   f"`togcrf eval --protocol`{hint}", err=True)
         raise typer.Exit(1)
     protocol = protocols[0] if len(set(protocols)) == 1 else "mixed"
-    for document, row_protocol in zip(documents, protocols, strict=True):
-        name = row_name(document) + (f" [{row_protocol}]" if protocol == "mixed" else "")
-        rows.append((name, document.get("row") or table_row(document)))
-    typer.echo(format_table(rows, protocol=protocol))
+    seeds = [run_seed(path) for path in run_dirs]
+    rows = named_rows(documents, seeds, protocols, mixed=protocol == "mixed")
+    table: dict[str, Any] = {"columns": list(TABLE_COLUMNS), "protocol": protocol}
+    if mean:
+        summaries = mean_rows(rows, [row_name(document) for document in documents], seeds,
+                              [str(path) for path in run_dirs])
+        typer.echo(format_mean_table(summaries, protocol=protocol))
+        table["means"] = summaries
+    else:
+        typer.echo(format_table(rows, protocol=protocol))
+    table["rows"] = [{"name": name, "source": str(path), "protocol": row_protocol, "seed": seed, **row}
+                     for (name, row), path, row_protocol, seed in zip(rows, run_dirs, protocols, seeds, strict=True)]
     if out is not None:
-        write_json(out, {"columns": list(TABLE_COLUMNS), "protocol": protocol,
-                         "rows": [{"name": name, "source": str(path), "protocol": row_protocol, **row}
-                                  for (name, row), path, row_protocol in zip(rows, run_dirs, protocols,
-                                                                              strict=True)]})
+        write_json(out, table)
 
 
 def register(app: typer.Typer) -> None:

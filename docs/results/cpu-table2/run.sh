@@ -9,3 +9,12 @@ cd "$(dirname "$0")/../../.."
 COMMON="--data data --pipeline recipe --scale cpu --epochs 1 --time-budget 0"
 .venv/bin/togcrf reproduce $COMMON --seed 0 --out runs/table2-cpu1-seed0
 .venv/bin/togcrf reproduce $COMMON --seed 1 --models tog,tog-crfs --out runs/table2-cpu1-seed1
+# The two seeds side by side, and each model's mean and standard deviation over them, from the evaluations
+# committed beside this script (seedS/MODEL/eval.json, eval-lab.json, config.json):
+cd docs/results/cpu-table2
+for suffix in "" -lab; do
+    ../../../.venv/bin/togcrf table seed{0,1}/tog/eval$suffix.json seed{0,1}/tog-crfs/eval$suffix.json \
+        --out seeds$suffix.json > seeds$suffix.txt
+    ../../../.venv/bin/togcrf table seed{0,1}/tog/eval$suffix.json seed{0,1}/tog-crfs/eval$suffix.json --mean \
+        --out means$suffix.json > means$suffix.txt
+done
