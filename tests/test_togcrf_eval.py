@@ -179,7 +179,8 @@ def test_table_names_the_seeds_and_averages_over_them(tmp_path: Path) -> None:
                                                                                   ("TOG-CRFs", 1, [0])]
     assert means[0]["mean"]["fps"] == 20.0  # a run without the column does not count towards its mean
     assert means[0]["mean"]["Acc-T top1"] is None and means[1]["sd"]["mAP"] is None
-    # without a config.json the runs of one model are numbered instead
-    bare = [_evaluated_run(tmp_path / f"bare{index}", "tog", None, 5.0, None) for index in range(2)]
-    result = CliRunner().invoke(app, ["table", *map(str, bare)])
-    assert "TOG [run 1]" in result.output and "TOG [run 2]" in result.output
+    # without a config.json, or with one seed twice, the runs of one model are numbered instead
+    for name, seed in (("bare", None), ("twin", 3)):
+        alike = [_evaluated_run(tmp_path / f"{name}{index}", "tog", seed, 5.0, None) for index in range(2)]
+        result = CliRunner().invoke(app, ["table", *map(str, alike)])
+        assert "TOG [run 1]" in result.output and "TOG [run 2]" in result.output, result.output

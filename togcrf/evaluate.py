@@ -337,13 +337,16 @@ def run_seed(path: Path) -> int | None:
 
 def named_rows(documents: Sequence[dict[str, Any]], seeds: Sequence[int | None],
                protocols: Sequence[str], mixed: bool) -> list[tuple[str, dict[str, float | None]]]:
-    """One (name, row) per evaluation; a model that appears more than once is named with its seed."""
+    """One (name, row) per evaluation; a model that appears more than once is named with its seed (with its
+    place in the list where the seeds do not tell its runs apart)."""
     names = [row_name(document) for document in documents]
+    labelled = list(zip(names, seeds, strict=True))
     rows = []
     for index, (document, model, seed, protocol) in enumerate(zip(documents, names, seeds, protocols, strict=True)):
         name = model
         if names.count(model) > 1:
-            name += f" [seed {seed}]" if seed is not None else f" [run {index + 1}]"
+            distinct = seed is not None and labelled.count((model, seed)) == 1
+            name += f" [seed {seed}]" if distinct else f" [run {index + 1}]"
         if mixed:
             name += f" [{protocol}]"
         rows.append((name, document.get("row") or table_row(document)))

@@ -26,6 +26,19 @@ for arm in recipe recipe-dense; do
         --device cpu --speed-images 0 --out runs/dense-ab/$arm/eval-on-dense.json
 done
 
+# seed1/: the same A/B with --seed 1, side by side at one thread each (2026-11-26, the same kind of 2-core AMD EPYC;
+# 2.35 images/s each, 5,460 and 5,490 images; a test run and step timings shared the machine for a few minutes)
+for arm in recipe recipe-dense; do
+    OMP_NUM_THREADS=1 .venv/bin/togcrf train --data data --pipeline $arm --out runs/dense-ab-seed1/$arm $OPTS --seed 1 &
+done
+wait
+for arm in recipe recipe-dense; do
+    .venv/bin/togcrf eval runs/dense-ab-seed1/$arm/checkpoint.pt --data data --pipeline recipe --split test \
+        --device cpu --speed-images 0 --out runs/dense-ab-seed1/$arm/eval.json
+    .venv/bin/togcrf eval runs/dense-ab-seed1/$arm/checkpoint.pt --data data --pipeline recipe-dense --split test \
+        --device cpu --speed-images 0 --out runs/dense-ab-seed1/$arm/eval-on-dense.json
+done
+
 # 60min/: TOG on recipe-dense alone on both cores (2 threads) for the recipe's 60-minute budget, the command of
 # docs/results/cpu-recipe-60min-epyc/ with --pipeline recipe-dense; evaluated on recipe's test split, both protocols.
 .venv/bin/togcrf train --data data --pipeline recipe-dense --out runs/dense-60min/tog ${OPTS/--time-budget 40/--time-budget 60}
