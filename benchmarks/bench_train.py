@@ -115,8 +115,7 @@ def child(arguments: argparse.Namespace) -> None:
     torch.manual_seed(0)
     model = build_model("tog", arguments.backbone, **setting["model_options"])
     model.train()
-    optimizer = build_optimizer(model, TrainConfig(data="", out="", optimizer=setting["optimizer"], lr=setting["lr"],
-                                                   momentum=0.9, weight_decay=1e-4))
+    optimizer = build_optimizer(model, TrainConfig(data="", out="", optimizer=setting["optimizer"], lr=setting["lr"]))
 
     def step(index: int) -> None:
         images, targets, _ = batches[index % len(batches)]

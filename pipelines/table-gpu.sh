@@ -181,7 +181,7 @@ report() {
     for job in "${JOBS[@]}"; do run_dirs+=("$(job_dir "$job")"); lab_files+=("$(job_dir "$job")/eval-lab.json"); done
     $PYTHON -m togcrf table "${run_dirs[@]}" --out "$RESULTS/table2.json" | tee "$RESULTS/table2.txt"
     $PYTHON -m togcrf table "${lab_files[@]}" --out "$RESULTS/table2-lab.json" | tee "$RESULTS/table2-lab.txt"
-    if printf '%s\n' "${JOBS[@]}" | grep -qv '^0:'; then
+    if [ "$(printf '%s\n' "${JOBS[@]}" | cut -d: -f1 | sort -u | wc -l)" -gt 1 ]; then
         # several seeds: each model's mean and standard deviation over its seeds
         $PYTHON -m togcrf table "${run_dirs[@]}" --mean --out "$RESULTS/means.json" | tee "$RESULTS/means.txt"
         $PYTHON -m togcrf table "${lab_files[@]}" --mean --out "$RESULTS/means-lab.json" | tee "$RESULTS/means-lab.txt"

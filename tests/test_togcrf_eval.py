@@ -148,11 +148,12 @@ def test_format_table_and_missing_values() -> None:
     assert not math.isnan(row["Acc-T top1"])
 
 
-def _evaluated_run(folder: Path, model: str, seed: int | None, map_percent: float, fps: float | None) -> Path:
+def _evaluated_run(folder: Path, model: str, seed: int | None, map_percent: float, fps: float | None,
+                   protocol: str = "ours") -> Path:
     """A run dir with a hand-made eval.json (the Table II row in percent) and, with a seed, its config.json."""
-    folder.mkdir(parents=True)
+    folder.mkdir(parents=True, exist_ok=True)
     row = {column: None for column in TABLE_COLUMNS} | {"mAP": map_percent, "mAP-G": map_percent / 4, "fps": fps}
-    (folder / "eval.json").write_text(json.dumps({"model": model, "protocol": "ours", "row": row}))
+    (folder / "eval.json").write_text(json.dumps({"model": model, "protocol": protocol, "row": row}))
     if seed is not None:
         (folder / "config.json").write_text(json.dumps({"seed": seed, "model": model}))
     return folder
@@ -163,7 +164,8 @@ def test_table_names_the_seeds_and_averages_over_them(tmp_path: Path) -> None:
     runs = [_evaluated_run(tmp_path / "s0" / "tog", "tog", 0, 10.0, 20.0),
             _evaluated_run(tmp_path / "s1" / "tog", "tog", 1, 14.0, None),
             _evaluated_run(tmp_path / "s0" / "tog-crfs", "tog-crfs", 0, 12.0, 30.0)]
-    result = CliRunner().invoke(app, ["table", *map(str, runs)])
+    # a run dir or the evaluation file in it: the seed comes from the config.json beside the evaluation
+    result = CliRunner().invoke(app, ["table", str(runs[0]), str(runs[1] / "eval.json"), str(runs[2])])
     assert result.exit_code == 0, result.output
     names = [line.split("  ")[0] for line in result.output.strip().splitlines()[2:]]
     assert names == ["TOG [seed 0]", "TOG [seed 1]", "TOG-CRFs"]
@@ -179,8 +181,16 @@ def test_table_names_the_seeds_and_averages_over_them(tmp_path: Path) -> None:
                                                                                   ("TOG-CRFs", 1, [0])]
     assert means[0]["mean"]["fps"] == 20.0  # a run without the column does not count towards its mean
     assert means[0]["mean"]["Acc-T top1"] is None and means[1]["sd"]["mAP"] is None
-    # without a config.json, or with one seed twice, the runs of one model are numbered instead
+    # without a config.json, or with one seed twice, the runs of one model are numbered among themselves
     for name, seed in (("bare", None), ("twin", 3)):
         alike = [_evaluated_run(tmp_path / f"{name}{index}", "tog", seed, 5.0, None) for index in range(2)]
-        result = CliRunner().invoke(app, ["table", *map(str, alike)])
-        assert "TOG [run 1]" in result.output and "TOG [run 2]" in result.output, result.output
+        result = CliRunner().invoke(app, ["table", str(alike[0]), str(runs[2]), str(alike[1])])
+        names = [line.split("  ")[0] for line in result.output.strip().splitlines()[2:]]
+        assert names == ["TOG [run 1]", "TOG-CRFs", "TOG [run 2]"], result.output
+    # one run under both protocols, --mixed: each row marked with its protocol, no seed needed
+    lab = _evaluated_run(tmp_path / "lab" / "tog", "tog", 0, 11.0, None, protocol="lab")
+    result = CliRunner().invoke(app, ["table", str(runs[0]), str(lab), "--mixed"])
+    names = [line.split("  ")[0] for line in result.output.strip().splitlines()[2:]]
+    assert names == ["TOG [ours]", "TOG [lab]"], result.output
+    result = CliRunner().invoke(app, ["table", str(runs[0]), str(lab), "--mixed", "--mean"])
+    assert result.exit_code == 1 and "--mean averages one protocol" in result.output

@@ -380,3 +380,24 @@ def test_cli_prints_progress_lines_off_a_terminal(data_dir, tmp_path):
     assert "run left" in result.output
     log = (tmp_path / "run" / "train.log").read_text()
     assert "epoch 1/1 step 2/2" in log and "epoch 1/1 done" in log
+
+
+def test_resuming_keeps_the_fused_optimiser():
+    """An AdamW state saved before the optimiser was fused loads into the fused one without unfusing it."""
+    from togcrf.train import _with_this_implementation, build_optimizer  # noqa: PLC0415
+
+    model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.LayerNorm(4))
+    config = TrainConfig(data="", out="", optimizer="adamw", lr=0.001, weight_decay=1e-4)
+    old = torch.optim.AdamW([{"params": [model[0].weight], "weight_decay": 1e-4},  # the groups build_optimizer makes
+                             {"params": [model[0].bias, model[1].weight, model[1].bias], "weight_decay": 0.0}],
+                            lr=0.001)
+    model(torch.randn(2, 3)).sum().backward()
+    old.step()
+    fused = build_optimizer(model, config)
+    assert [group["fused"] for group in fused.param_groups] == [True, True]
+    fused.load_state_dict(_with_this_implementation(old.state_dict(), fused))
+    assert [group["fused"] for group in fused.param_groups] == [True, True]
+    assert fused.state[model[0].weight]["step"] == 1  # the saved moments and step came along
+    plain = build_optimizer(model, config)
+    plain.load_state_dict(old.state_dict())  # what loading it as saved would do
+    assert not any(group["fused"] for group in plain.param_groups)

@@ -14,7 +14,7 @@ import csv
 import logging
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -47,6 +47,21 @@ def read_curves(run_dir: Path) -> dict[str, list[float]]:
     return columns
 
 
+def _add_legends(figure: Any, panels: dict[Any, dict[str, str]], run_handles: list[Any]) -> None:
+    """Each panel's line styles in its own legend, and the runs' colours once under the panels."""
+    from matplotlib.lines import Line2D  # noqa: PLC0415
+
+    for axes, lines in panels.items():
+        axes.grid(alpha=0.3)
+        if axes.lines:
+            axes.legend(handles=[Line2D([], [], linestyle=style, color="0.3", label=column.removeprefix("val_"))
+                                 for column, style in lines.items()], fontsize=8)
+    columns = min(4, max(1, len(run_handles)))
+    rows = math.ceil(len(run_handles) / columns)
+    figure.legend(handles=run_handles, loc="lower center", ncol=columns, fontsize=8, frameon=False)
+    figure.tight_layout(rect=(0, min(0.4, 0.05 * rows + 0.02), 1, 1))
+
+
 def draw_curves(run_dirs: list[Path], out: Path) -> Path:
     """Draw the learning curves of runs into a PNG; returns its path.
 
@@ -77,15 +92,7 @@ def draw_curves(run_dirs: list[Path], out: Path) -> Path:
                                 color=colour)
     losses.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", yscale="log", title="losses")
     validation.set(xlabel="epoch", ylabel="percent", ylim=(0, 100), title="held-out validation slice")
-    for axes, lines, strip in ((losses, LOSS_LINES, 0), (validation, VALIDATION_LINES, len("val_"))):
-        axes.grid(alpha=0.3)
-        if axes.lines:
-            axes.legend(handles=[Line2D([], [], linestyle=style, color="0.3", label=column[strip:])
-                                 for column, style in lines.items()], fontsize=8)
-    columns = min(4, max(1, len(run_handles)))
-    rows = math.ceil(len(run_handles) / columns)
-    figure.legend(handles=run_handles, loc="lower center", ncol=columns, fontsize=8, frameon=False)
-    figure.tight_layout(rect=(0, min(0.4, 0.05 * rows + 0.02), 1, 1))
+    _add_legends(figure, {losses: LOSS_LINES, validation: VALIDATION_LINES}, run_handles)
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=120)
     plt.close(figure)

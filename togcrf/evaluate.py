@@ -337,18 +337,36 @@ def run_seed(path: Path) -> int | None:
 
 def named_rows(documents: Sequence[dict[str, Any]], seeds: Sequence[int | None],
                protocols: Sequence[str], mixed: bool) -> list[tuple[str, dict[str, float | None]]]:
-    """One (name, row) per evaluation; a model that appears more than once is named with its seed (with its
-    place in the list where the seeds do not tell its runs apart)."""
-    names = [row_name(document) for document in documents]
-    labelled = list(zip(names, seeds, strict=True))
+    """One (name, row) per evaluation, for :func:`format_table`.
+
+    Parameters
+    ----------
+    documents : sequence of dict
+        Evaluation documents.
+    seeds : sequence of int or None
+        Each one's training seed (:func:`run_seed`).
+    protocols : sequence of str
+        Each one's protocol.
+    mixed : bool
+        Mark each row with its protocol (``TOG [lab]``).
+
+    Returns
+    -------
+    list of (str, dict)
+        The paper's model name, with ``[seed S]`` where the model (of one protocol) appears more than once,
+        or ``[run N]`` (its place among them) where the seeds do not tell those runs apart.
+    """
+    keys = [(row_name(document), protocol if mixed else "") for document, protocol in zip(documents, protocols,
+                                                                                        strict=True)]
+    keyed_seeds = list(zip(keys, seeds, strict=True))
     rows = []
-    for index, (document, model, seed, protocol) in enumerate(zip(documents, names, seeds, protocols, strict=True)):
-        name = model
-        if names.count(model) > 1:
-            distinct = seed is not None and labelled.count((model, seed)) == 1
-            name += f" [seed {seed}]" if distinct else f" [run {index + 1}]"
+    for index, (document, key, seed) in enumerate(zip(documents, keys, seeds, strict=True)):
+        name = key[0]
+        if keys.count(key) > 1:
+            distinct = seed is not None and keyed_seeds.count((key, seed)) == 1
+            name += f" [seed {seed}]" if distinct else f" [run {keys[:index + 1].count(key)}]"
         if mixed:
-            name += f" [{protocol}]"
+            name += f" [{key[1]}]"
         rows.append((name, document.get("row") or table_row(document)))
     return rows
 
@@ -481,7 +499,7 @@ def table_command(
     protocols = [document_protocol(document) for document in documents]
     if len(set(protocols)) > 1 and not (mixed and not mean):
         listing = "; ".join(f"{path}: {protocol}" for path, protocol in zip(run_dirs, protocols, strict=True))
-        hint = "" if mean else ", or pass --mixed to print each row marked"
+        hint = " (--mean averages one protocol)" if mean else ", or pass --mixed to print each row marked"
         typer.echo(f"error: the evaluations mix protocols ({listing}); evaluate them all with one "
                    f"`togcrf eval --protocol`{hint}", err=True)
         raise typer.Exit(1)

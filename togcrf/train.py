@@ -366,6 +366,17 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
     logger.info("initial weights from %s", path)
 
 
+def _with_this_implementation(state: dict[str, Any], optimizer: torch.optim.Optimizer) -> dict[str, Any]:
+    """A saved optimiser state whose groups keep this optimiser's implementation flags (``fused``, ``foreach``).
+
+    ``load_state_dict`` takes every group setting from the saved state, so a state saved before AdamW was
+    fused would turn it back to the per-tensor loop, which then refuses the float16 loss scaler's scale.
+    """
+    groups = [{**saved, **{key: current[key] for key in ("fused", "foreach") if key in current}}
+              for saved, current in zip(state["param_groups"], optimizer.param_groups, strict=False)]
+    return {**state, "param_groups": groups}
+
+
 def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
     """Load a checkpoint into the run; the first epoch still to train."""
     checkpoint = read_checkpoint(checkpoint_path, run.device)
@@ -375,7 +386,7 @@ def _resume(run: _Run, checkpoint_path: Path, stored_config: dict[str, Any]) -> 
             raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {saved.get(key)!r}, "
                              f"now {stored_config.get(key)!r}")
     run.model.load_state_dict(checkpoint["model"])
-    run.optimizer.load_state_dict(checkpoint["optimizer"])
+    run.optimizer.load_state_dict(_with_this_implementation(checkpoint["optimizer"], run.optimizer))
     run.scheduler.load_state_dict(checkpoint["scheduler"])
     if checkpoint.get("scaler"):  # absent from checkpoints written before it was saved (2026-11)
         run.scaler.load_state_dict(checkpoint["scaler"])

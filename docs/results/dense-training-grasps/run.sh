@@ -27,7 +27,7 @@ for arm in recipe recipe-dense; do
 done
 
 # seed1/: the same A/B with --seed 1, side by side at one thread each (2026-11-26, the same kind of 2-core AMD EPYC;
-# 2.35 images/s each, 5,460 and 5,490 images; a test run and step timings shared the machine for a few minutes)
+# 2.2 images/s each, 5,450 and 5,490 images; a test run and step timings shared the machine for a few minutes)
 for arm in recipe recipe-dense; do
     OMP_NUM_THREADS=1 .venv/bin/togcrf train --data data --pipeline $arm --out runs/dense-ab-seed1/$arm $OPTS --seed 1 &
 done
@@ -37,6 +37,9 @@ for arm in recipe recipe-dense; do
         --device cpu --speed-images 0 --out runs/dense-ab-seed1/$arm/eval.json
     .venv/bin/togcrf eval runs/dense-ab-seed1/$arm/checkpoint.pt --data data --pipeline recipe-dense --split test \
         --device cpu --speed-images 0 --out runs/dense-ab-seed1/$arm/eval-on-dense.json
+    mkdir -p docs/results/dense-training-grasps/seed1/$arm
+    cp runs/dense-ab-seed1/$arm/{eval.json,eval-on-dense.json,metrics.csv,config.json} \
+        docs/results/dense-training-grasps/seed1/$arm/
 done
 
 # 60min/: TOG on recipe-dense alone on both cores (2 threads) for the recipe's 60-minute budget, the command of
