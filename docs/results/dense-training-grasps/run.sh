@@ -49,3 +49,20 @@ done
     --speed-images 10 --out runs/dense-60min/tog/eval.json
 .venv/bin/togcrf eval runs/dense-60min/tog/checkpoint.pt --data data --pipeline recipe --split test --device cpu \
     --speed-images 0 --protocol lab --out runs/dense-60min/tog/eval-lab.json
+
+# 60min-ab/: the same A/B for 60 minutes of training steps each (side by side, one thread each, seed 0; 2026-11-26,
+# the 2-core AMD EPYC of seed1/, AdamW fused; 2.3 images/s each: 8,520 and 8,360 images, 4.9 epochs)
+for arm in recipe recipe-dense; do
+    OMP_NUM_THREADS=1 .venv/bin/togcrf train --data data --pipeline $arm --out runs/dense-ab-60/$arm \
+        ${OPTS/--time-budget 40/--time-budget 60} --seed 0 &
+done
+wait
+for arm in recipe recipe-dense; do
+    .venv/bin/togcrf eval runs/dense-ab-60/$arm/checkpoint.pt --data data --pipeline recipe --split test \
+        --device cpu --speed-images 0 --out runs/dense-ab-60/$arm/eval.json
+    .venv/bin/togcrf eval runs/dense-ab-60/$arm/checkpoint.pt --data data --pipeline recipe-dense --split test \
+        --device cpu --speed-images 0 --out runs/dense-ab-60/$arm/eval-on-dense.json
+    mkdir -p docs/results/dense-training-grasps/60min-ab/$arm
+    cp runs/dense-ab-60/$arm/{eval.json,eval-on-dense.json,metrics.csv,config.json} \
+        docs/results/dense-training-grasps/60min-ab/$arm/
+done
