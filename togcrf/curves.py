@@ -47,9 +47,11 @@ def read_curves(run_dir: Path) -> dict[str, list[float]]:
     return columns
 
 
-def _add_legends(figure: Any, panels: dict[Any, dict[str, str]], run_handles: list[Any]) -> None:
-    """Each panel's line styles in its own legend, and the runs' colours once under the panels."""
+def _add_legends(figure: Any, panels: dict[Any, dict[str, str]], run_colours: list[tuple[str, str]]) -> None:
+    """Each panel's line styles in its own legend, and the runs' (name, colour) once under the panels."""
     from matplotlib.lines import Line2D  # noqa: PLC0415
+
+    run_handles = [Line2D([], [], color=colour, label=name) for name, colour in run_colours]
 
     for axes, lines in panels.items():
         axes.grid(alpha=0.3)
@@ -72,15 +74,14 @@ def draw_curves(run_dirs: list[Path], out: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.lines import Line2D  # noqa: PLC0415
 
     figure, (losses, validation) = plt.subplots(1, 2, figsize=(11, 4.2))
-    run_handles = []
+    run_colours: list[tuple[str, str]] = []
     for index, run_dir in enumerate(run_dirs):
         curves = read_curves(run_dir)
         colour = f"C{index % 10}"
         name = "/".join(Path(run_dir).parts[-2:])  # run dirs are often OUT/<model>: keep OUT
-        run_handles.append(Line2D([], [], color=colour, label=name))
+        run_colours.append((name, colour))
         epochs = [epoch + 1 for epoch in curves.get("epoch", [])]
         for column, style in LOSS_LINES.items():
             if column in curves:
@@ -92,7 +93,7 @@ def draw_curves(run_dirs: list[Path], out: Path) -> Path:
                                 color=colour)
     losses.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", yscale="log", title="losses")
     validation.set(xlabel="epoch", ylabel="percent", ylim=(0, 100), title="held-out validation slice")
-    _add_legends(figure, {losses: LOSS_LINES, validation: VALIDATION_LINES}, run_handles)
+    _add_legends(figure, {losses: LOSS_LINES, validation: VALIDATION_LINES}, run_colours)
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=120)
     plt.close(figure)

@@ -335,14 +335,16 @@ def run_seed(path: Path) -> int | None:
     return seed if isinstance(seed, int) else None
 
 
-def named_rows(documents: Sequence[dict[str, Any]], seeds: Sequence[int | None],
+def named_rows(models: Sequence[str], rows: Sequence[dict[str, float | None]], seeds: Sequence[int | None],
                protocols: Sequence[str], mixed: bool) -> list[tuple[str, dict[str, float | None]]]:
     """One (name, row) per evaluation, for :func:`format_table`.
 
     Parameters
     ----------
-    documents : sequence of dict
-        Evaluation documents.
+    models : sequence of str
+        Each evaluation's model, as the paper names it (:func:`row_name`).
+    rows : sequence of dict
+        Each one's :func:`table_row`.
     seeds : sequence of int or None
         Each one's training seed (:func:`run_seed`).
     protocols : sequence of str
@@ -353,34 +355,33 @@ def named_rows(documents: Sequence[dict[str, Any]], seeds: Sequence[int | None],
     Returns
     -------
     list of (str, dict)
-        The paper's model name, with ``[seed S]`` where the model (of one protocol) appears more than once,
+        The model's name, with ``[seed S]`` where the model (of one protocol) appears more than once,
         or ``[run N]`` (its place among them) where the seeds do not tell those runs apart.
     """
-    keys = [(row_name(document), protocol if mixed else "") for document, protocol in zip(documents, protocols,
-                                                                                        strict=True)]
+    keys = [(model, protocol if mixed else "") for model, protocol in zip(models, protocols, strict=True)]
     keyed_seeds = list(zip(keys, seeds, strict=True))
-    rows = []
-    for index, (document, key, seed) in enumerate(zip(documents, keys, seeds, strict=True)):
+    named = []
+    for index, (key, row, seed) in enumerate(zip(keys, rows, seeds, strict=True)):
         name = key[0]
         if keys.count(key) > 1:
             distinct = seed is not None and keyed_seeds.count((key, seed)) == 1
             name += f" [seed {seed}]" if distinct else f" [run {keys[:index + 1].count(key)}]"
         if mixed:
             name += f" [{key[1]}]"
-        rows.append((name, document.get("row") or table_row(document)))
-    return rows
+        named.append((name, row))
+    return named
 
 
-def mean_rows(rows: Sequence[tuple[str, dict[str, float | None]]], models: Sequence[str],
-              seeds: Sequence[int | None], sources: Sequence[str]) -> list[dict[str, Any]]:
+def mean_rows(models: Sequence[str], rows: Sequence[dict[str, float | None]], seeds: Sequence[int | None],
+              sources: Sequence[str]) -> list[dict[str, Any]]:
     """Each model's mean and sample standard deviation over its runs, in the order models first appear.
 
     Parameters
     ----------
-    rows : sequence of (str, dict)
-        Name and :func:`table_row` of each run.
     models : sequence of str
         The model each row belongs to (rows of one model are averaged).
+    rows : sequence of dict
+        The :func:`table_row` of each run.
     seeds, sources : sequences
         Each row's seed and where its evaluation was read, listed with its model's mean.
 
@@ -398,7 +399,7 @@ def mean_rows(rows: Sequence[tuple[str, dict[str, float | None]]], models: Seque
         mean: dict[str, float | None] = {}
         sd: dict[str, float | None] = {}
         for column in TABLE_COLUMNS:
-            values = [rows[index][1][column] for index in indices if rows[index][1].get(column) is not None]
+            values = [rows[index][column] for index in indices if rows[index].get(column) is not None]
             mean[column] = float(np.mean(values)) if values else None
             sd[column] = float(np.std(values, ddof=1)) if len(values) > 1 else None
         summaries.append({"name": model, "runs": len(indices), "mean": mean, "sd": sd,
@@ -504,12 +505,13 @@ def table_command(
                    f"`togcrf eval --protocol`{hint}", err=True)
         raise typer.Exit(1)
     protocol = protocols[0] if len(set(protocols)) == 1 else "mixed"
+    models = [row_name(document) for document in documents]
+    values = [document.get("row") or table_row(document) for document in documents]
     seeds = [run_seed(path) for path in run_dirs]
-    rows = named_rows(documents, seeds, protocols, mixed=protocol == "mixed")
+    rows = named_rows(models, values, seeds, protocols, mixed=protocol == "mixed")
     table: dict[str, Any] = {"columns": list(TABLE_COLUMNS), "protocol": protocol}
     if mean:
-        summaries = mean_rows(rows, [row_name(document) for document in documents], seeds,
-                              [str(path) for path in run_dirs])
+        summaries = mean_rows(models, values, seeds, [str(path) for path in run_dirs])
         typer.echo(format_mean_table(summaries, protocol=protocol))
         table["means"] = summaries
     else:
