@@ -17,6 +17,12 @@ then where today's path spends its time.
 
     python benchmarks/bench_render.py [--frames 20] [--samples 12]
     python benchmarks/bench_render.py --osgd-models ../shared/osgd-models [--per-category 2] [--scenes 75]
+    python benchmarks/bench_render.py --built DATA_DIR --before COMMIT [--items 12]
+
+With ``--built DATA_DIR`` (a whole build of ``pipelines/osgd.toml`` as it
+was at commit ``--before``) it only times ``--items`` samples items of that
+build in fresh one-core processes: commit ``--before`` against the working
+tree, both with that commit's config.
 """
 
 from __future__ import annotations
@@ -142,10 +148,11 @@ def osgd_pipeline(models_dir: Path, data_dir: Path, per_category: int, scenes: i
 BEFORE_ISSUE_22 = "ed5ac77"
 
 
-def time_items(source: Path, data_dir: Path, overrides: list[str], items: int) -> float:
+def time_items(source: Path, data_dir: Path, overrides: list[str], items: int,
+               config: Path = ROOT / "pipelines" / "osgd.toml") -> float:
     """Seconds per sample of the samples stage of the osgd checkout at ``source``, in a fresh process."""
     arguments = [sys.executable, str(ROOT / "benchmarks" / "time_samples_items.py"), str(data_dir),
-                 str(ROOT / "pipelines" / "osgd.toml"), "--items", str(items)]
+                 str(config), "--items", str(items)]
     for override in overrides:
         arguments += ["-s", override]
     environment = {**os.environ, "PYTHONPATH": str(source), "PYTHONHASHSEED": "0"}
@@ -194,6 +201,30 @@ def bench_osgd(models_dir: Path, data_dir: Path, per_category: int, scenes: int,
     profile_today(data_dir, overrides, items)
 
 
+def bench_built(data_dir: Path, items: int, before: str) -> None:
+    """Today's samples stage against commit ``before`` on ``items`` items of a whole build of ``osgd.toml``.
+
+    All 75 of the authors' models and thousands of piles show what a small
+    pipeline does not: the per-item reading of every models, grasps and
+    checks shard, an embree cache smaller than the models, and a collision
+    world that fills with bodies pile after pile (issue #22).
+    """
+    print(f"samples stage on {items} items of the build of pipelines/osgd.toml in {data_dir}, one process each:")
+    with tempfile.TemporaryDirectory() as folder:
+        # Both read the config of ``before``, which names the scenes shards the data dir holds; copied out of
+        # pipelines/, its models folder must come from the environment.
+        os.environ.setdefault("OSGD_MODELS_DIR", str((ROOT / "pipelines" / "../../shared/osgd-models").resolve()))
+        config = Path(folder) / "osgd.toml"
+        config.write_bytes(subprocess.run(["git", "-C", str(ROOT), "show", f"{before}:pipelines/osgd.toml"],
+                                          check=True, capture_output=True).stdout)
+        seconds = {"before": time_items(checkout(before, Path(folder)), data_dir, [], items, config),
+                   "today": time_items(ROOT, data_dir, [], items, config)}
+    for label, value in seconds.items():
+        print(f"  {label:6s} ({before if label == 'before' else 'working tree'}): {value * 1000:6.0f} ms/sample "
+              f"({1 / value:5.2f} samples/s)")
+    print(f"  ratio: {seconds['before'] / seconds['today']:.2f}x")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=20)
@@ -205,7 +236,14 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=75, help="piles of the authors' models (25 per item)")
     parser.add_argument("--workers", type=int, default=2, help="workers that build the authors' pipeline")
     parser.add_argument("--before", default=BEFORE_ISSUE_22, help="the commit to compare today's samples stage with")
+    parser.add_argument("--built", type=Path, default=None,
+                        help="a data dir where `osgd run pipelines/osgd.toml` built the stages before samples: "
+                             "time --items of its samples items with --before and today (skips the rest)")
+    parser.add_argument("--items", type=int, default=12, help="samples items timed with --built (the first warms up)")
     arguments = parser.parse_args()
+    if arguments.built is not None:
+        bench_built(arguments.built, arguments.items, arguments.before)
+        return
     bench_backends(arguments.frames)
     for renderer in available_backends():
         bench_stage(arguments.samples, renderer)

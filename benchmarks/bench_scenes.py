@@ -14,6 +14,12 @@ runs side by side, the piles' statistics (contacts measured on the stored
 parts, top-down overlap and occlusion on the meshes) and the deepest
 interpenetration of the stored parts per pile.
 
+With ``--config``, the stage with that pipeline's ``[scenes]`` parameters
+against the reduced hulls dropped as before issue #22's second round
+(a new pybullet client per attempt): the time ratio, the piles'
+statistics and how still the piles are (each simulated again for 1 s)
+side by side.
+
 It then prints where the stage's time goes (cProfile over the first run):
 the share of the attempts that were thrown away, creating the bodies, the
 per-step blow-up test and the physics steps.
@@ -24,6 +30,9 @@ Usage::
     python benchmarks/bench_scenes.py --data-dir DATA      # every models row under DATA
     python benchmarks/bench_scenes.py --osgd-models ../shared/osgd-models --scenes 60   # the authors' models
     python benchmarks/bench_scenes.py --scenes 40 --seed 1
+    python benchmarks/bench_scenes.py --osgd-models ../shared/osgd-models --scenes 200 --config pipelines/osgd.toml
+    python benchmarks/bench_scenes.py --osgd-models ../shared/osgd-models --scenes 200 --config pipelines/osgd.toml \
+        --config-only
 
 ``--osgd-models`` builds (once; kept in ``.bench/osgd-render``) the small
 pipeline of 20 of the paper authors' models that ``bench_render.py
@@ -43,8 +52,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from osgd.physics import reduced_hull
+from osgd.physics import create_object_body, get_mesh_pose, physics_client, pybullet_module, reduced_hull
 from osgd.scenes import drop
 from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene, stored_penetration
 from osgd.scenes.params import ScenesStageParams
@@ -140,15 +150,98 @@ def compare_hulls(pool: ModelPool, data_dir: Path | None, seed: int, scenes: int
           f"{hulls['attempts']:.2f} attempts, rejections {hulls['rejections']}")
     print(f"  ratio stored parts / reduced hulls (wall time per scene): "
           f"{stored['seconds_per_scene'] / hulls['seconds_per_scene']:.2f}")
-    names = ("touching_share", "lying_on_share", "off_floor_share", "overlapping_share", "occluded_share",
-             "mean_occlusion")
-    figures = [pile_figures(data_dir, stored["rows"]), pile_figures(data_dir, hulls["rows"])]
-    if figures[0] is not None and figures[1] is not None:
-        print(f"  piles ({figures[0].objects} / {figures[1].objects} objects), stored parts / reduced hulls: "
-              + ", ".join(f"{name.removesuffix('_share')} {getattr(figures[0], name):.2f} / "
-                          f"{getattr(figures[1], name):.2f}" for name in names))
+    print_pile_figures(data_dir, ("stored parts", stored["rows"]), ("reduced hulls", hulls["rows"]))
     for label, rows in (("stored parts", stored["rows"]), ("reduced hulls", hulls["rows"])):
         print(f"  interpenetration of the stored parts per pile, {label}: {penetration_figures(pool, rows)}")
+
+
+def compare_config(pool: ModelPool, data_dir: Path | None, seed: int, scenes: int, config: Path,
+                   max_vertices: int) -> None:
+    """The config's ``[scenes]`` parameters against the reduced hulls alone dropped as before (issue #22).
+
+    Before: a new pybullet client per attempt and per stored-parts check
+    (today's :func:`osgd.physics.worker_client` swapped for
+    :func:`osgd.physics.physics_client`, as the stage did until then),
+    reduced hulls, every other parameter at its default. After: the stage
+    as it is, with the config's parameters.
+    """
+    from contextlib import contextmanager  # noqa: PLC0415
+
+    from osgd.pipeline import load_pipeline  # noqa: PLC0415
+
+    @contextmanager
+    def new_client(timestep: float = 1.0 / 240.0, gravity: float = -9.81) -> Any:
+        with physics_client(timestep, gravity) as client:
+            yield client
+
+    configured = load_pipeline(config).params["scenes"]
+    assert isinstance(configured, ScenesStageParams)
+    kept = drop.worker_client
+    drop.worker_client = new_client
+    try:
+        before = run(pool, ScenesStageParams(max_hull_vertices=max_vertices), seed, scenes)
+    finally:
+        drop.worker_client = kept
+    after = run(pool, configured, seed, scenes)
+    changed = {name: value for name, value in configured.key_dict().items()
+               if name not in ("count", "max_hull_vertices") and value != ScenesStageParams().key_dict().get(name)}
+    print(f"{config}'s [scenes] ({changed}) against reduced hulls of {max_vertices} corners dropped as before:")
+    for label, figures in (("before", before), ("after", after)):
+        print(f"  {label:6s} {figures['seconds_per_scene']:.3f} s per scene per core (median "
+              f"{figures['median_seconds']:.3f}), {figures['steps_per_scene']:.0f} steps per accepted scene, "
+              f"{figures['attempts']:.2f} attempts, rejections {figures['rejections']}")
+    print(f"  ratio before / after (wall time per scene): "
+          f"{before['seconds_per_scene'] / after['seconds_per_scene']:.2f}")
+    print_pile_figures(data_dir, ("before", before["rows"]), ("after", after["rows"]))
+    for label, rows, params in (("before", before["rows"], ScenesStageParams(max_hull_vertices=max_vertices)),
+                                ("after", after["rows"], configured)):
+        print(f"  {label}: simulated again for 1 s, {rest_quality(pool, rows, params)}")
+
+
+def rest_quality(pool: ModelPool, rows: list[dict[str, Any]], params: ScenesStageParams) -> str:
+    """How still the kept piles are: each simulated again for 1 s from its stored poses, at rest.
+
+    Per pile, the largest displacement and turn of any of its objects
+    (colliding as they were dropped: ``params.max_hull_vertices``); the
+    share of piles beyond 3 mm or 0.03 rad is what the scenes tests bound.
+    """
+    models = {str(row["model_id"]): row for row in pool.rows}
+    pybullet = pybullet_module()
+    moved, turned = [], []
+    for row in rows:
+        with physics_client(timestep=params.timestep) as client:
+            drop.build_world(client, params)
+            bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
+                                         np.asarray(obj["quaternion"]), max_hull_vertices=params.max_hull_vertices)
+                      for obj in row["objects"]]
+            for _ in range(round(1.0 / params.timestep)):
+                pybullet.stepSimulation(physicsClientId=client)
+            poses = [get_mesh_pose(body) for body in bodies]
+        moved.append(max(float(np.linalg.norm(position - obj["position"]))
+                         for (position, _), obj in zip(poses, row["objects"], strict=True)))
+        turned.append(max((Rotation.from_quat(quaternion) * Rotation.from_quat(obj["quaternion"]).inv()).magnitude()
+                          for (_, quaternion), obj in zip(poses, row["objects"], strict=True)))
+    if not rows:
+        return "no piles"
+    moved_mm, turned_rad = 1000 * np.array(moved), np.array(turned)
+    beyond = np.mean((moved_mm > 3.0) | (turned_rad > 0.03))
+    return (f"moved {np.median(moved_mm):.2f} mm median ({np.percentile(moved_mm, 90):.2f} p90), turned "
+            f"{np.median(turned_rad):.4f} rad median ({np.percentile(turned_rad, 90):.4f} p90); piles beyond 3 mm "
+            f"or 0.03 rad: {100 * beyond:.1f} %")
+
+
+def print_pile_figures(data_dir: Path | None, *runs: tuple[str, list[dict[str, Any]]]) -> None:
+    """The piles' statistics of runs side by side (nothing for the test fixtures)."""
+    names = ("touching_share", "lying_on_share", "off_floor_share", "overlapping_share", "occluded_share",
+             "mean_occlusion")
+    figures = [pile_figures(data_dir, rows) for _, rows in runs]
+    if any(figure is None for figure in figures):
+        return
+    labels = " / ".join(label for label, _ in runs)
+    objects = " / ".join(str(figure.objects) for figure in figures)
+    print(f"  piles ({objects} objects), {labels}: "
+          + ", ".join(f"{name.removesuffix('_share')} "
+                      + " / ".join(f"{getattr(figure, name):.2f}" for figure in figures) for name in names))
 
 
 #: Functions whose cumulative time the profile reports, by label.
@@ -204,6 +297,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-hull-vertices", type=int, default=32,
                         help="corners of the reduced hulls compared with the stored parts (0: no comparison)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="a pipeline config whose [scenes] parameters to compare with the reduced hulls "
+                             "dropped as before issue #22's second round (e.g. pipelines/osgd.toml)")
+    parser.add_argument("--config-only", action="store_true",
+                        help="with --config: only that comparison (no baselines, no profile)")
     arguments = parser.parse_args()
     if arguments.osgd_models is not None:
         from bench_render import ROOT, osgd_pipeline  # noqa: PLC0415 - the same small pipeline of the authors' models
@@ -213,6 +311,10 @@ def main() -> None:
     pool, description = load_pool(arguments.data_dir)
     print(f"models: {description}; {arguments.scenes} scenes, seed {arguments.seed}, one process")
 
+    if arguments.config is not None and arguments.config_only:
+        compare_config(pool, arguments.data_dir, arguments.seed, arguments.scenes, arguments.config,
+                       arguments.max_hull_vertices)
+        return
     at_rest = run(pool, ScenesStageParams(), arguments.seed, arguments.scenes)
     fixed = run(pool, ScenesStageParams(fixed_sim_time=3.0, reject_unsettled=False), arguments.seed,
                 arguments.scenes)
@@ -232,6 +334,9 @@ def main() -> None:
     if arguments.max_hull_vertices > 0:
         compare_hulls(pool, arguments.data_dir, arguments.seed, arguments.scenes, arguments.max_hull_vertices,
                       at_rest)
+    if arguments.config is not None:
+        compare_config(pool, arguments.data_dir, arguments.seed, arguments.scenes, arguments.config,
+                       arguments.max_hull_vertices)
     where_time_goes(pool, ScenesStageParams(), arguments.seed, arguments.scenes)
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024

@@ -84,3 +84,27 @@ def test_both_criteria_are_stored_and_the_stage_says_which_one_stable_means() ->
     assert (lift.lift_stable, lift.shake_stable, lift.fail_reason) == (True, False, "dropped_on_shake")
     assert (shake.lift_stable, shake.shake_stable) == (True, False)
     assert lift.stable and not shake.stable
+
+
+def test_a_light_thin_object_stays_between_the_pads_when_its_trial_runs_at_a_finer_step() -> None:
+    # A 4 g bar, 4.7 mm thick (the authors' pen_003), pinched across its thickness by 70 N: friction holds it
+    # against any shake. At 1/240 s the 0.1 kg fingers squeeze it out of the grasp; with max_mass_ratio the
+    # trial runs at a third of the step, and it is held.
+    bar = box_model([0.12, 0.0047, 0.0087], 0.004, 0.5)
+    coarse = [trial(bar, [offset, 0.0, 0.0], ACROSS_Y, 0.03, SOFT) for offset in (-0.03, 0.0, 0.03)]
+    fine_params = SOFT.model_copy(update={"max_mass_ratio": 10.0})
+    fine = [trial(bar, [offset, 0.0, 0.0], ACROSS_Y, 0.03, fine_params) for offset in (-0.03, 0.0, 0.03)]
+    assert not any(result.shake_stable for result in coarse)
+    assert all(result.lift_stable and result.shake_stable for result in fine)
+    assert fine[0].sim_steps > 2 * coarse[0].sim_steps
+
+
+def test_only_light_objects_get_a_finer_step() -> None:
+    from osgd.checks.trial import trial_params  # noqa: PLC0415
+
+    params = SOFT.model_copy(update={"max_mass_ratio": 10.0})  # fingers of 0.1 kg: objects under 10 g
+    assert trial_params(params, 0.02) is params
+    assert trial_params(params, 0.01) is params
+    assert trial_params(params, 0.004).timestep == pytest.approx(params.timestep / 3)
+    assert trial_params(SOFT, 0.004) is SOFT  # off by default: the procedural pipelines keep their keys
+    assert "max_mass_ratio" not in SOFT.key_dict()

@@ -126,20 +126,19 @@ def test_pybullet_module_imports_pybullet_on_first_use_without_its_banner() -> N
     assert "pybullet build time" not in result.stdout + result.stderr
 
 
-def test_the_trial_client_registers_one_exit_handler(monkeypatch: pytest.MonkeyPatch) -> None:
-    from osgd.checks import trial  # noqa: PLC0415
-    from osgd.physics import pybullet_module  # noqa: PLC0415
+def test_the_process_client_registers_one_exit_handler(monkeypatch: pytest.MonkeyPatch) -> None:
+    from osgd import physics  # noqa: PLC0415
 
     registered = []
-    monkeypatch.setattr(trial.atexit, "register", registered.append)
-    monkeypatch.setattr(trial._ProcessClient, "client", None)
-    monkeypatch.setattr(trial._ProcessClient, "exit_handler_registered", False)
-    first = trial.trial_client()
-    assert trial.trial_client() == first
-    pybullet_module().disconnect(first)  # lost: the next call connects again
-    second = trial.trial_client()
-    pybullet_module().disconnect(second)
-    assert registered == [trial._disconnect]
+    monkeypatch.setattr(physics.atexit, "register", registered.append)
+    monkeypatch.setattr(physics._ProcessClient, "client", None)
+    monkeypatch.setattr(physics._ProcessClient, "exit_handler_registered", False)
+    first = physics.process_client()
+    assert physics.process_client() == first
+    physics.pybullet_module().disconnect(first)  # lost: the next call connects again
+    second = physics.process_client()
+    physics.pybullet_module().disconnect(second)
+    assert registered == [physics._disconnect]
 
 
 def test_the_hash_seed_is_set_for_the_workers_and_a_serial_build_is_warned(

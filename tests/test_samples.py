@@ -306,6 +306,25 @@ def test_the_crop_frames_every_object_with_the_drawn_margin(built):
         assert fx == fy and fx > KINECT_V2.fx * params.crop_size / KINECT_V2.width
 
 
+def test_the_crop_from_hull_vertices_equals_the_crop_from_every_vertex():
+    """The window is computed from each mesh's hull vertices (issue #22); every vertex gives the same numbers."""
+    from osgd.samples.stage import crop_around_objects  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    models = fixture_models()
+    for _ in range(20):
+        objects = [RenderObject(model["model_id"], np.asarray(model["vertices"]).reshape(-1, 3),
+                                np.asarray(model["faces"]).reshape(-1, 3), np.append(rng.uniform(-0.1, 0.1, 2), 0.02),
+                                Rotation.random(random_state=rng).as_quat()) for model in models]
+        pose = draw_camera_pose(rng, np.zeros(3), 0.7, 0.5, np.pi)
+        window = crop_around_objects(KINECT_V2, pose, objects, 320, 1.2)
+        pixels = np.concatenate([KINECT_V2.project(pose.world_to_camera(obj.world_vertices())) for obj in objects])
+        low, high = pixels.min(axis=0) + 0.5, pixels.max(axis=0) + 0.5
+        side = float(max(high - low)) * 1.2
+        centre = (low + high) / 2
+        assert window == KINECT_V2.cropped(centre[0] - side / 2, centre[1] - side / 2, side, 320)
+
+
 def test_crop_size_zero_keeps_the_kinect_frame(tmp_path):
     store = ShardStore(tmp_path)
     keys = write_fixture_inputs(store)
@@ -431,7 +450,7 @@ def test_grasp_row_fixture_is_self_consistent():
 def test_a_worker_world_reused_across_piles_judges_grasps_as_a_fresh_world_does() -> None:
     """Bodies moved from pile to pile (copies of one model included) collide as freshly loaded ones."""
     from osgd.gripper import PANDA  # noqa: PLC0415
-    from osgd.physics import create_object_body, physics_client  # noqa: PLC0415
+    from osgd.physics import create_object_body, physics_client, pybullet_module  # noqa: PLC0415
     from osgd.samples.collision import PileCollider, PileWorld, pile_collider  # noqa: PLC0415
 
     hammer, screwdriver, block = fixture_models()
@@ -454,6 +473,14 @@ def test_a_worker_world_reused_across_piles_judges_grasps_as_a_fresh_world_does(
                       for obj in scene["objects"]]
             collider = PileCollider(client, bodies, PANDA, 0.001)
             decisions["fresh"] += [collider.collides(*pose) for pose in poses]
+        # Between piles every body waits far from the piles and from the others (PARKING_ORIGIN).
+        pybullet, client = pybullet_module(), reused.client
+        bodies = [pybullet.getBodyUniqueId(index, physicsClientId=client)
+                  for index in range(pybullet.getNumBodies(physicsClientId=client))]
+        positions = np.array([pybullet.getBasePositionAndOrientation(body, physicsClientId=client)[0]
+                              for body in bodies])
+        assert np.all(np.linalg.norm(positions, axis=1) > 100.0)
+        assert min(np.linalg.norm(a - b) for index, a in enumerate(positions) for b in positions[index + 1:]) > 1.0
     reused.close()
     assert decisions["reused"] == decisions["fresh"]
     assert 0.1 < np.mean(decisions["fresh"]) < 0.9  # both outcomes are exercised

@@ -13,7 +13,12 @@ from helpers import block_parts, fixture_models, model_row, write_models
 from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
-from osgd.physics import create_object_body, get_mesh_pose, physics_client
+from osgd.checks.calibration import _top_down_across_y
+from osgd.checks.params import ChecksStageParams
+from osgd.checks.trial import run_trial
+from osgd.gripper import PANDA
+from osgd.physics import create_object_body, get_mesh_pose, physics_client, pybullet_module, worker_client
+from osgd.scenes import drop as drop_module
 from osgd.scenes.drop import (
     ModelPool,
     Release,
@@ -141,9 +146,11 @@ def test_the_stored_seed_rebuilds_the_accepted_attempt(built: tuple[ShardStore, 
     np.testing.assert_array_equal(outcome.positions, [obj["position"] for obj in row["objects"]])
 
 
-def test_a_blown_up_simulation_is_rejected_until_the_attempts_run_out(tmp_path: Path) -> None:
+@pytest.mark.parametrize("runaway_check_steps", [1, 8])
+def test_a_blown_up_simulation_is_rejected_until_the_attempts_run_out(tmp_path: Path,
+                                                                       runaway_check_steps: int) -> None:
     # Anything falling 30 cm lands at about 2 m/s: a 1 m/s limit calls every attempt blown up.
-    params = ScenesStageParams(count=1, max_linear_speed=1.0, max_attempts=3)
+    params = ScenesStageParams(count=1, max_linear_speed=1.0, max_attempts=3, runaway_check_steps=runaway_check_steps)
     result = generate_scene(ModelPool(fixture_models()), params, 0, 0)
     assert result.row is None
     assert result.rejections == Counter({"blew_up": 3})
@@ -153,8 +160,9 @@ def test_a_blown_up_simulation_is_rejected_until_the_attempts_run_out(tmp_path: 
     assert "all 3 attempts rejected (blew_up 3)" in report.notes["scenes_000"][0]
 
 
-def test_a_coarse_time_step_lets_objects_fall_through_the_floor_and_is_rejected() -> None:
-    params = ScenesStageParams(timestep=0.05, max_attempts=2)
+@pytest.mark.parametrize("runaway_check_steps", [1, 8])
+def test_a_coarse_time_step_lets_objects_fall_through_the_floor_and_is_rejected(runaway_check_steps: int) -> None:
+    params = ScenesStageParams(timestep=0.05, max_attempts=2, runaway_check_steps=runaway_check_steps)
     result = generate_scene(ModelPool(fixture_models()), params, 0, 0)
     assert result.row is None
     assert result.rejections["fell_through_floor"] >= 1
@@ -224,6 +232,35 @@ def test_piles_dropped_with_reduced_hulls_are_judged_on_the_stored_parts() -> No
     # the same draws with the stored parts: those piles are not rejected for interpenetration
     assert generate_scene(pool, params.model_copy(update={"max_hull_vertices": 0}), 0, 0
                           ).rejections["interpenetration"] == 0
+
+
+def test_piles_do_not_depend_on_what_the_process_dropped_before(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Every attempt empties this process's one pybullet client (resetSimulation) instead of connecting anew.
+    pool = ModelPool(fixture_models())
+    params = ScenesStageParams(max_attempts=3, max_hull_vertices=5, penetration_tolerance=0.05)
+    forward = [generate_scene(pool, params, 0, index).row for index in range(4)]
+    # A grasp trial in between uses the same client with other engine settings (100 solver iterations, ERP).
+    run_trial(fixture_models()[2], np.zeros(3), _top_down_across_y(), 0.06, ChecksStageParams(), PANDA,
+              np.random.default_rng(0))
+    backward = [generate_scene(pool, params, 0, index).row for index in reversed(range(4))]
+    assert forward == backward[::-1]
+    with worker_client() as client:
+        assert pybullet_module().getNumBodies(physicsClientId=client) == 0
+        with pytest.raises(RuntimeError, match="already in use"), worker_client():
+            pass
+    monkeypatch.setattr(drop_module, "worker_client", physics_client)  # a new client per attempt, as before
+    assert [generate_scene(pool, params, 0, index).row for index in range(4)] == forward
+
+
+def test_a_sparser_runaway_test_keeps_the_piles_and_the_old_keys() -> None:
+    # What the test catches mostly lasts, so testing every 8th step (and at every rest test) keeps these piles.
+    pool = ModelPool(fixture_models())
+    for scene_index in range(3):
+        every_step = generate_scene(pool, ScenesStageParams(max_attempts=3), 0, scene_index).row
+        sparse = generate_scene(pool, ScenesStageParams(max_attempts=3, runaway_check_steps=8), 0, scene_index).row
+        assert sparse == every_step
+    assert "runaway_check_steps" not in ScenesStageParams().key_dict()
+    assert ScenesStageParams(runaway_check_steps=8).key_dict()["runaway_check_steps"] == 8
 
 
 def test_the_hull_option_keeps_old_scene_keys_until_it_is_set() -> None:

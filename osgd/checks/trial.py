@@ -43,8 +43,8 @@ process.
 
 from __future__ import annotations
 
-import atexit
 import logging
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -55,7 +55,7 @@ from scipy.spatial.transform import Rotation
 from osgd.checks.hand import FINGER_A, FINGER_B, SimulatedHand, create_hand
 from osgd.checks.params import ChecksStageParams
 from osgd.gripper import Gripper
-from osgd.physics import ObjectBody, create_object_body, pybullet_module
+from osgd.physics import ObjectBody, create_object_body, process_client, pybullet_module
 
 log = logging.getLogger(__name__)
 
@@ -108,37 +108,6 @@ class TrialResult:
     slip_rotation: float
     final_opening: float
     sim_steps: int
-
-
-# -- the per-process physics client -------------------------------------------
-
-class _ProcessClient:
-    """The one physics client of this process for grasp trials (a per-worker cache, not shared state)."""
-
-    client: int | None = None
-    exit_handler_registered: bool = False
-
-
-def trial_client() -> int:
-    """This process's physics client for grasp trials, created on first use.
-
-    One DIRECT client per worker process, reused by every trial the process
-    runs (connecting costs more than a whole trial); disconnected at exit.
-    """
-    pybullet = pybullet_module()
-    if _ProcessClient.client is None or not pybullet.isConnected(_ProcessClient.client):
-        if not _ProcessClient.exit_handler_registered:  # one exit handler per process, however often it reconnects
-            atexit.register(_disconnect)
-            _ProcessClient.exit_handler_registered = True
-        _ProcessClient.client = pybullet.connect(pybullet.DIRECT)
-    return _ProcessClient.client
-
-
-def _disconnect() -> None:
-    pybullet = pybullet_module()
-    if _ProcessClient.client is not None and pybullet.isConnected(_ProcessClient.client):
-        pybullet.disconnect(_ProcessClient.client)
-    _ProcessClient.client = None
 
 
 # -- geometry helpers ----------------------------------------------------------
@@ -349,6 +318,20 @@ def _shake(trial: _Trial, rng: np.random.Generator) -> bool:
     return trial.held()
 
 
+def trial_params(params: ChecksStageParams, mass: float) -> ChecksStageParams:
+    """The parameters a trial of an object of ``mass`` kg runs with: a shorter step for a light one.
+
+    With ``max_mass_ratio`` above 0 and the fingers more than that many
+    times the object's mass, the step is divided by
+    ``ceil(finger_mass / (max_mass_ratio * mass))``; every duration stays
+    the same in seconds.
+    """
+    if params.max_mass_ratio <= 0 or mass <= 0:
+        return params
+    substeps = math.ceil(params.finger_mass / (params.max_mass_ratio * mass))
+    return params if substeps <= 1 else params.model_copy(update={"timestep": params.timestep / substeps})
+
+
 def run_trial(
     model: Mapping[str, Any],
     grasp_position: np.ndarray,
@@ -377,7 +360,7 @@ def run_trial(
     rng : numpy.random.Generator
         Draws the frame of the shake directions.
     client : int, optional
-        pybullet client; this process's :func:`trial_client` by default.
+        pybullet client; this process's :func:`osgd.physics.process_client` by default.
 
     Returns
     -------
@@ -385,7 +368,8 @@ def run_trial(
         The ``lift`` outcome is decided after the hold; the shakes run only
         for grasps that pass it.
     """
-    client = trial_client() if client is None else client
+    client = process_client() if client is None else client
+    params = trial_params(params, float(model["mass"]))
     _setup_world(client, params)
     hand = create_hand(
         client, gripper, palm_mass=params.palm_mass, finger_mass=params.finger_mass,

@@ -22,7 +22,7 @@ from __future__ import annotations
 import atexit
 import functools
 from collections import Counter
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -32,6 +32,13 @@ from scipy.spatial.transform import Rotation
 from osgd.gripper import Gripper
 from osgd.physics import ObjectBody, create_object_body, pybullet_module, set_mesh_pose
 from osgd.raycast import rotate_rows
+
+#: Where bodies wait between piles: body ``i`` at ``PARKING_ORIGIN + PARKING_SPACING * (i % 100, i // 100, 0)``,
+#: far from every pile and from each other. A body left where its last pile put it overlaps the next pile's,
+#: and pybullet's broadphase then walks every such overlap whenever a body moves there: with the ~1,800
+#: gripper and object bodies a worker keeps, that made each move of the gripper cost ~0.2 ms (issue #22).
+PARKING_ORIGIN = np.array([1000.0, 1000.0, 1000.0])
+PARKING_SPACING = 2.0
 
 #: How close, m, an object's axis-aligned box must come to the gripper's for pybullet to be asked: well over
 #: the penetration tolerance and pybullet's collision margins (about 1 mm on convex hulls, docs/checks.md).
@@ -71,6 +78,8 @@ class PileCollider:
         self.tolerance = tolerance
         self._grippers = {} if gripper_bodies is None else gripper_bodies
         self.bounds = bounds
+        #: Gripper bodies moved into this pile, to be parked again when it is done.
+        self.moved_grippers: set[int] = set()
 
     def collides(self, object_index: int, position: np.ndarray, rotation: np.ndarray, opening: float,
                  quaternion: np.ndarray | None = None, near: np.ndarray | None = None) -> bool:
@@ -100,6 +109,7 @@ class PileCollider:
         if quaternion is None:
             quaternion = Rotation.from_matrix(rotation).as_quat()
         body = self._gripper_body(float(opening))
+        self.moved_grippers.add(body)
         pybullet.resetBasePositionAndOrientation(
             body,
             np.asarray(position, dtype=np.float64).tolist(),
@@ -220,6 +230,14 @@ class PileWorld:
             body_ids.append(body.body_id)
         return body_ids
 
+    def park(self, body_ids: Iterable[int]) -> None:
+        """Move bodies to their parking spots (:data:`PARKING_ORIGIN`), away from every pile."""
+        pybullet = pybullet_module()
+        for body in body_ids:
+            spot = PARKING_ORIGIN + PARKING_SPACING * np.array([body % 100, body // 100, 0.0])
+            pybullet.resetBasePositionAndOrientation(body, spot.tolist(), [0.0, 0.0, 0.0, 1.0],
+                                                     physicsClientId=self.client)
+
 
 @functools.cache
 def worker_pile_world() -> PileWorld:
@@ -252,4 +270,9 @@ def pile_collider(
     """
     world = world or worker_pile_world()
     bodies = world.place(models, objects)
-    yield PileCollider(world.client, bodies, gripper, tolerance, world.gripper_bodies, world.bounds(models, objects))
+    collider = PileCollider(world.client, bodies, gripper, tolerance, world.gripper_bodies,
+                            world.bounds(models, objects))
+    try:
+        yield collider
+    finally:
+        world.park([*bodies, *collider.moved_grippers])

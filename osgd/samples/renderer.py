@@ -95,8 +95,12 @@ class RenderObject:
 
     def world_vertices(self) -> np.ndarray:
         """Vertices in the world frame, (V, 3) float64."""
+        return self.to_world(self.vertices)
+
+    def to_world(self, points: np.ndarray) -> np.ndarray:
+        """Mesh-frame points (N, 3) in the world frame, (N, 3) float64."""
         rotation = Rotation.from_quat(np.asarray(self.quaternion, dtype=np.float64)).as_matrix()
-        return rotate_rows(self.vertices, rotation) + np.asarray(self.position, dtype=np.float64)
+        return rotate_rows(points, rotation) + np.asarray(self.position, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -159,8 +163,9 @@ def floor_mesh(centre_xy: np.ndarray, half_size: float) -> tuple[np.ndarray, np.
 
 
 #: Embree scenes kept per process by :class:`EmbreeScenes` (each holds a mesh and its BVH, about 100 bytes
-#: per triangle: 64 of the authors' largest meshes take about 300 MB).
-EMBREE_SCENES_KEPT = 64
+#: per triangle: 64 of the authors' largest meshes take about 300 MB). 128, so that all 75 of the authors'
+#: models stay built: at 64 a sixth of the casts rebuilt a scene, 7 % of the samples stage (issue #22).
+EMBREE_SCENES_KEPT = 128
 
 
 class EmbreeScenes:
@@ -180,12 +185,7 @@ class EmbreeScenes:
         return len(self._scenes)
 
     def scene(self, obj: RenderObject) -> tuple[Any, np.ndarray]:
-        """The embree scene of ``obj``'s mesh (mesh frame), and the indices of its convex hull's vertices.
-
-        The hull's vertices bound the mesh's projection exactly (a
-        perspective projection's ``u`` and ``v`` are extreme at a hull
-        vertex), at a fraction of the vertices.
-        """
+        """The embree scene of ``obj``'s mesh (mesh frame), and its :func:`hull_vertices`."""
         entry = self._scenes.pop(obj.key, None)
         if entry is None:
             from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
@@ -193,7 +193,7 @@ class EmbreeScenes:
             vertices = np.asarray(obj.vertices, dtype=np.float64)
             scene = rtcore_scene.EmbreeScene()
             mesh_construction.TriangleMesh(scene, vertices.astype(np.float32), np.asarray(obj.faces, dtype=np.int32))
-            entry = scene, _hull_vertex_indices(vertices)
+            entry = scene, hull_vertices(obj)
         self._scenes[obj.key] = entry
         while len(self._scenes) > self.capacity:
             self._scenes.popitem(last=False)
@@ -208,6 +208,24 @@ def _hull_vertex_indices(vertices: np.ndarray) -> np.ndarray:
         return np.sort(ConvexHull(vertices).vertices)
     except (QhullError, ValueError):
         return np.arange(len(vertices))
+
+
+#: :func:`hull_vertices`' indices by mesh key, for the life of the process (a few per model).
+_HULL_INDICES: dict[str, np.ndarray] = {}
+
+
+def hull_vertices(obj: RenderObject) -> np.ndarray:
+    """The mesh's convex-hull vertices, (K, 3) float64, mesh frame; their indices computed once per key.
+
+    A perspective projection's ``u`` and ``v`` are extreme at a hull vertex,
+    so these bound the object's projected box exactly, at a fraction of the
+    vertices (the authors' meshes have up to ~100k).
+    """
+    vertices = np.asarray(obj.vertices, dtype=np.float64).reshape(-1, 3)
+    indices = _HULL_INDICES.get(obj.key)
+    if indices is None:
+        indices = _HULL_INDICES[obj.key] = _hull_vertex_indices(vertices)
+    return vertices[indices]
 
 
 @dataclass(frozen=True)
@@ -247,7 +265,7 @@ def cast_object(scenes: EmbreeScenes, obj: RenderObject, intrinsics: CameraIntri
     rotation = Rotation.from_quat(np.asarray(obj.quaternion, dtype=np.float64)).as_matrix()
     position = np.asarray(obj.position, dtype=np.float64)
     vertices = np.asarray(obj.vertices, dtype=np.float64)
-    camera = pose.world_to_camera(rotate_rows(vertices[hull], rotation) + position)
+    camera = pose.world_to_camera(rotate_rows(hull, rotation) + position)
     if np.any(camera[:, 2] <= 1e-6):
         return None
     pixels = intrinsics.project(camera)

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from osgd.physics import ObjectBody, create_object_body, get_mesh_pose, physics_client, pybullet_module
+from osgd.physics import ObjectBody, create_object_body, get_mesh_pose, pybullet_module, worker_client
 from osgd.scenes.params import ScenesStageParams
 
 log = logging.getLogger(__name__)
@@ -190,7 +190,10 @@ def build_world(client: int, params: ScenesStageParams) -> list[int]:
     pybullet = pybullet_module()
     lateral, rolling, spinning = params.floor_friction
     plane = pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client)
-    bodies = [pybullet.createMultiBody(0, plane, physicsClientId=client)]
+    # A body without a visual shape gets one made from its collision shape for pybullet's renderer: for the
+    # plane that took 5-18 ms, as long as 60 steps of a pile. A small box instead; physics never sees it.
+    look = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=[0.01] * 3, physicsClientId=client)
+    bodies = [pybullet.createMultiBody(0, plane, look, physicsClientId=client)]
     half = params.area_size / 2
     length = params.area_size + 2 * _WALL_THICKNESS
     for axis in (0, 1):
@@ -223,7 +226,7 @@ def _release(client: int, pool: ModelPool, release: Release, objects: list[Objec
 
 def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesStageParams,
                   initial_poses: Sequence[tuple[np.ndarray, np.ndarray]] | None = None) -> DropOutcome:
-    """Simulate one attempt in a fresh physics client and judge it.
+    """Simulate one attempt in an empty world (this process's :func:`osgd.physics.worker_client`) and judge it.
 
     Parameters
     ----------
@@ -238,50 +241,16 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
     -------
     DropOutcome
     """
-    pybullet = pybullet_module()
-    dt = params.timestep
-    release_steps = [0] * len(releases) if initial_poses is not None else [
-        round(index * params.release_interval / dt) for index in range(len(releases))
-    ]
-    last_release = max(release_steps, default=0)
-    fixed_steps = math.ceil(params.fixed_sim_time / dt) if params.fixed_sim_time > 0 else 0
-    max_steps = last_release + fixed_steps if fixed_steps else math.ceil(params.max_sim_time / dt)
-    with physics_client(timestep=dt) as client:
+    with worker_client(timestep=params.timestep) as client:
         build_world(client, params)
-        objects: list[ObjectBody] = []
-        step = 0
-        reason = detail = mover = ""
-        at_rest = False
-        window_start: list[tuple[np.ndarray, np.ndarray]] | None = None
-        while True:
-            while len(objects) < len(releases) and release_steps[len(objects)] <= step:
-                objects.append(_next_body(client, pool, releases, objects, params, initial_poses))
-            pybullet.stepSimulation(physicsClientId=client)
-            step += 1
-            reason, detail = _runaway(client, objects, params, step)
-            if reason:
-                break
-            # At rest: over the last window of rest_steps steps every object
-            # moved less than the rest speeds allow. Displacement, not the
-            # instantaneous speeds: contact jitter (a light tool's angular
-            # speed flickering above 0.05 rad/s while it goes nowhere) kept a
-            # third of the attempts of the default pipeline from ever
-            # counting as settled.
-            if len(objects) == len(releases) and step > last_release and (step - last_release) % params.rest_steps == 0:
-                poses = [_com_pose(client, body) for body in objects]
-                if window_start is not None:
-                    at_rest, mover = _window_at_rest(window_start, poses, objects, params, params.rest_steps * dt)
-                    if at_rest and fixed_steps == 0:
-                        break
-                window_start = poses
-            if step >= max_steps:
-                break
-        settled = at_rest
+        run = _step_until_rest(client, pool, releases, params, initial_poses)
+        reason, detail, objects = run.reason, run.detail, run.objects
         if not reason and len(objects) < len(releases):  # a pile without all its objects is never kept
             reason, detail = "not_settled", (f"max_sim_time {params.max_sim_time} s ended before object "
                                              f"{len(objects) + 1} of {len(releases)} was released")
         if not reason:
-            reason, detail = _final_verdict(client, objects, params, settled, f"{step * dt:.2f}", mover)
+            reason, detail = _final_verdict(client, objects, params, run.at_rest,
+                                            f"{run.step * params.timestep:.2f}", run.mover)
         poses = [get_mesh_pose(body) for body in objects]
     if not reason and params.max_hull_vertices > 0:
         depth, pair = stored_penetration([pool.rows[release.model_index] for release in releases], poses, params)
@@ -291,7 +260,60 @@ def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesSt
     quaternions = np.array([pose[1] for pose in poses], dtype=np.float64).reshape(-1, 4)
     if reason:
         log.debug("attempt rejected (%s): %s", reason, detail)
-    return DropOutcome(reason, positions, quaternions, settled, step * dt, step, detail)
+    return DropOutcome(reason, positions, quaternions, run.at_rest, run.step * params.timestep, run.step, detail)
+
+
+@dataclass
+class _Run:
+    """Where one attempt's simulation stopped (:func:`_step_until_rest`)."""
+
+    objects: list[ObjectBody] = field(default_factory=list)
+    step: int = 0
+    reason: str = ""  # why it went wrong ("" when it did not)
+    detail: str = ""
+    at_rest: bool = False
+    mover: str = ""  # the object that moved most in the last rest window
+
+
+def _step_until_rest(client: int, pool: ModelPool, releases: Sequence[Release], params: ScenesStageParams,
+                     initial_poses: Sequence[tuple[np.ndarray, np.ndarray]] | None) -> _Run:
+    """Release the objects and step until the pile is at rest, goes wrong or the time is up."""
+    pybullet = pybullet_module()
+    dt = params.timestep
+    release_steps = [0] * len(releases) if initial_poses is not None else [
+        round(index * params.release_interval / dt) for index in range(len(releases))
+    ]
+    last_release = max(release_steps, default=0)
+    fixed_steps = math.ceil(params.fixed_sim_time / dt) if params.fixed_sim_time > 0 else 0
+    max_steps = last_release + fixed_steps if fixed_steps else math.ceil(params.max_sim_time / dt)
+    run = _Run()
+    window_start: list[tuple[np.ndarray, np.ndarray]] | None = None
+    while run.step < max_steps:
+        while len(run.objects) < len(releases) and release_steps[len(run.objects)] <= run.step:
+            run.objects.append(_next_body(client, pool, releases, run.objects, params, initial_poses))
+        pybullet.stepSimulation(physicsClientId=client)
+        run.step += 1
+        rest_test = (len(run.objects) == len(releases) and run.step > last_release
+                     and (run.step - last_release) % params.rest_steps == 0)
+        if run.step % params.runaway_check_steps == 0 or rest_test or run.step >= max_steps:
+            run.reason, run.detail = _runaway(client, run.objects, params, run.step)
+            if run.reason:
+                break
+        # At rest: over the last window of rest_steps steps every object
+        # moved less than the rest speeds allow. Displacement, not the
+        # instantaneous speeds: contact jitter (a light tool's angular
+        # speed flickering above 0.05 rad/s while it goes nowhere) kept a
+        # third of the attempts of the default pipeline from ever
+        # counting as settled.
+        if rest_test:
+            poses = [_com_pose(client, body) for body in run.objects]
+            if window_start is not None:
+                run.at_rest, run.mover = _window_at_rest(window_start, poses, run.objects, params,
+                                                         params.rest_steps * dt)
+                if run.at_rest and fixed_steps == 0:
+                    break
+            window_start = poses
+    return run
 
 
 def _next_body(client: int, pool: ModelPool, releases: Sequence[Release], objects: list[ObjectBody],
@@ -414,7 +436,7 @@ def stored_penetration(models: Sequence[Mapping[str, Any]], poses: Sequence[tupl
     """The deepest interpenetration of the objects' stored convex parts at the given poses.
 
     The objects are placed as static bodies beside the floor and walls of
-    :func:`build_world` in a fresh physics client; pybullet's closest points
+    :func:`build_world` in an empty world; pybullet's closest points
     at distance 0 give the overlaps (a simulation with reduced hulls, whose
     contacts say nothing about the stored parts, is judged this way).
 
@@ -436,7 +458,7 @@ def stored_penetration(models: Sequence[Mapping[str, Any]], poses: Sequence[tupl
     """
     pybullet = pybullet_module()
     deepest, pair = 0.0, (-1, -1)
-    with physics_client() as client:
+    with worker_client() as client:
         world = build_world(client, params)
         bodies = [create_object_body(client, model, np.asarray(position), np.asarray(quaternion), mass=0.0).body_id
                   for model, (position, quaternion) in zip(models, poses, strict=True)]

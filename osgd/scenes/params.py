@@ -84,6 +84,15 @@ class ScenesStageParams(StageParams):
         description="faster than this the simulation blew up (free fall from 0.5 m lands at about 3 m/s)",
     )
     max_angular_speed: float = Field(150.0, gt=0.0, description="spinning faster than this, rad/s, blew up too")
+    runaway_check_steps: int = Field(
+        1, ge=1, json_schema_extra={"omit_default": True},
+        description="test for a blow-up, an object out of the area or through the floor every this many steps "
+                    "(and at every rest test and the last step); 1: every step. Each test asks pybullet three "
+                    "things per object, a tenth of the stacking time at 1 (issue #22); what it catches (NaN, an "
+                    "object flung out or through the floor) lasts, so a sparser test rejects the same attempts, "
+                    "a few steps later, but for a speed spike shorter than the interval (at 8: 1 of the 8,000 "
+                    "piles of pipelines/osgd.toml)",
+    )
     penetration_tolerance: float = Field(
         0.005, ge=0.0, description="objects interpenetrating deeper than this after settling are rejected"
     )
