@@ -179,25 +179,24 @@ class EmbreeScenes:
 
     def __init__(self, capacity: int = EMBREE_SCENES_KEPT) -> None:
         self.capacity = capacity
-        self._scenes: OrderedDict[str, tuple[Any, np.ndarray]] = OrderedDict()
+        self._scenes: OrderedDict[str, Any] = OrderedDict()
 
     def __len__(self) -> int:
         return len(self._scenes)
 
-    def scene(self, obj: RenderObject) -> tuple[Any, np.ndarray]:
-        """The embree scene of ``obj``'s mesh (mesh frame), and its :func:`hull_vertices`."""
-        entry = self._scenes.pop(obj.key, None)
-        if entry is None:
+    def scene(self, obj: RenderObject) -> Any:
+        """The embree scene of ``obj``'s mesh, in the mesh's frame."""
+        scene = self._scenes.pop(obj.key, None)
+        if scene is None:
             from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
 
-            vertices = np.asarray(obj.vertices, dtype=np.float64)
             scene = rtcore_scene.EmbreeScene()
-            mesh_construction.TriangleMesh(scene, vertices.astype(np.float32), np.asarray(obj.faces, dtype=np.int32))
-            entry = scene, hull_vertices(obj)
-        self._scenes[obj.key] = entry
+            mesh_construction.TriangleMesh(scene, np.asarray(obj.vertices, dtype=np.float32),
+                                           np.asarray(obj.faces, dtype=np.int32))
+        self._scenes[obj.key] = scene
         while len(self._scenes) > self.capacity:
             self._scenes.popitem(last=False)
-        return entry
+        return scene
 
 
 def _hull_vertex_indices(vertices: np.ndarray) -> np.ndarray:
@@ -261,11 +260,11 @@ def cast_object(scenes: EmbreeScenes, obj: RenderObject, intrinsics: CameraIntri
     ObjectHits or None
         None when a vertex lies behind the camera's image plane (no finite projection).
     """
-    scene, hull = scenes.scene(obj)
+    scene = scenes.scene(obj)
     rotation = Rotation.from_quat(np.asarray(obj.quaternion, dtype=np.float64)).as_matrix()
     position = np.asarray(obj.position, dtype=np.float64)
     vertices = np.asarray(obj.vertices, dtype=np.float64)
-    camera = pose.world_to_camera(rotate_rows(hull, rotation) + position)
+    camera = pose.world_to_camera(rotate_rows(hull_vertices(obj), rotation) + position)
     if np.any(camera[:, 2] <= 1e-6):
         return None
     pixels = intrinsics.project(camera)
