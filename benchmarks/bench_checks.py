@@ -3,8 +3,10 @@
 1. Trials per second on one core: the fixture tools (tests/helpers.py) with
    grasps across their handles and bodies, run serially in this process,
    first with the rigid pads of the check before issue #17 (the baseline),
-   then with the soft pads (both criteria come from one trial), and their
-   ratio.
+   then with the soft pads (both criteria come from one trial), then with
+   the soft pads and the approach swept against the mesh
+   (``approach_geometry = "mesh"``, as ``pipelines/osgd.toml``), and the
+   ratios.
 2. The whole shared OSGD set (``../shared/osgd-models``, skipped when
    absent): the models and grasps stages are run first (their shards are
    kept under ``--data-dir`` and reused on the next run, and not timed), then
@@ -36,7 +38,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from helpers import OSGD_MODELS, fixture_models  # noqa: E402
 
 from osgd.checks.params import ChecksStageParams  # noqa: E402
-from osgd.checks.trial import run_trial  # noqa: E402
+from osgd.checks.trial import approach_surface, run_trial  # noqa: E402
 from osgd.gripper import PANDA  # noqa: E402
 
 
@@ -52,6 +54,11 @@ def bench_fixture_trials(count: int, params: ChecksStageParams, label: str) -> f
     # Closing across each tool's thickness, approach from above, centres along the tool.
     quaternion = Rotation.from_matrix(np.column_stack([[0, 1, 0], [1, 0, 0], [0, 0, -1]])).as_quat()
     rng = np.random.default_rng(0)
+    # As the stage does: each model's surface sampled once for the mesh approach (timed).
+    start = time.perf_counter()
+    surfaces = [approach_surface(model, params.approach_surface_spacing) if params.approach_geometry == "mesh"
+                else None for model in models]
+    sampling = time.perf_counter() - start
     run_trial(models[2], np.zeros(3), quaternion, 0.05, params, PANDA, rng)  # warm-up: imports, client
     outcomes: dict[str, int] = {}
     steps = 0
@@ -59,10 +66,11 @@ def bench_fixture_trials(count: int, params: ChecksStageParams, label: str) -> f
     for index in range(count):
         model = models[index % len(models)]
         x = rng.uniform(-0.1, 0.1)
-        result = run_trial(model, np.array([x, 0.0, 0.0]), quaternion, 0.05, params, PANDA, rng)
+        result = run_trial(model, np.array([x, 0.0, 0.0]), quaternion, 0.05, params, PANDA, rng,
+                           surface=surfaces[index % len(models)])
         outcomes[result.fail_reason or "stable"] = outcomes.get(result.fail_reason or "stable", 0) + 1
         steps += result.sim_steps
-    elapsed = time.perf_counter() - start
+    elapsed = time.perf_counter() - start + sampling
     print(f"fixture tools, {label}: {count} trials in {elapsed:.2f} s on one core: {count / elapsed:.1f} trials/s, "
           f"{1000 * elapsed / count:.1f} ms/trial, {steps / count:.0f} steps/trial, "
           f"{1e6 * elapsed / max(steps, 1):.0f} us/step (all costs included); outcomes {outcomes}")
@@ -107,7 +115,10 @@ def main() -> None:
     arguments = parser.parse_args()
     baseline = bench_fixture_trials(arguments.trials, ChecksStageParams(pad_contact="rigid"), "rigid pads (before #17)")
     soft = bench_fixture_trials(arguments.trials, ChecksStageParams(), "soft pads, lift and shake")
-    print(f"soft pads against rigid pads, same run: {soft / baseline:.2f}x the trials per second")
+    mesh = bench_fixture_trials(arguments.trials, ChecksStageParams(approach_geometry="mesh"),
+                                "soft pads, approach against the mesh")
+    print(f"soft pads against rigid pads, same run: {soft / baseline:.2f}x the trials per second; "
+          f"with the approach against the mesh: {mesh / baseline:.2f}x")
     if arguments.quick:
         pass
     elif OSGD_MODELS.is_dir():

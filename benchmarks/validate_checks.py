@@ -58,7 +58,7 @@ from helpers import OSGD_MODELS, bar_mesh, tool_of_mass  # noqa: E402
 from osgd.checks.calibration import FRICTIONS, coulomb_probe, torsion_probe  # noqa: E402
 from osgd.checks.params import ChecksStageParams  # noqa: E402
 from osgd.checks.stage import trial_seed  # noqa: E402
-from osgd.checks.trial import run_trial  # noqa: E402
+from osgd.checks.trial import approach_surface, run_trial  # noqa: E402
 from osgd.gripper import PANDA  # noqa: E402
 from osgd.models.parts import principal_frame  # noqa: E402
 
@@ -106,6 +106,7 @@ def _model_trials(job: dict[str, Any]) -> list[dict[str, Any]]:
     model, grasps, params, seed = job["model"], job["grasps"], ChecksStageParams(**job["params"]), job["seed"]
     mesh = trimesh.Trimesh(np.asarray(model["vertices"]), np.asarray(model["faces"]), process=False)
     long_axis = principal_frame(mesh).axes[0]
+    surface = approach_surface(model, params.approach_surface_spacing) if params.approach_geometry == "mesh" else None
     rows = []
     for grasp in grasps:
         object_width = width_at_grasp(mesh, np.asarray(grasp["position"]), np.asarray(grasp["quaternion"]))
@@ -114,7 +115,7 @@ def _model_trials(job: dict[str, Any]) -> list[dict[str, Any]]:
                 variant, np.asarray(grasp["position"]), np.asarray(grasp["quaternion"]), grasp["width"],
                 object_width, long_axis)
             result = run_trial(model, position, quaternion, width, params, PANDA,
-                               trial_seed(seed, model["model_id"], grasp["grasp_id"]))
+                               trial_seed(seed, model["model_id"], grasp["grasp_id"]), surface=surface)
             rows.append({"model": model["name"], "category": model["category"], "task": grasp["task"],
                          "grasp_id": grasp["grasp_id"], "variant": variant, "lift": result.lift_stable,
                          "shake": result.shake_stable, "fail_reason": result.fail_reason,

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pyarrow as pa
 import pytest
+import trimesh
 from helpers import block_parts, fixture_models, hammer_parts, model_row, write_models
 from scipy.spatial.transform import Rotation
 
@@ -90,6 +91,61 @@ def test_object_wider_than_the_hand_collides_on_approach(models) -> None:
 def test_pre_grasp_opening_narrower_than_the_object_collides_on_approach(models) -> None:
     result = trial(models["block"], [0.0, 0.0, 0.0], ACROSS_Y, 0.03)
     assert result.fail_reason == "approach_collision"
+
+
+# -- the approach on the hulls and on the mesh ---------------------------------------
+
+MESH_APPROACH = ChecksStageParams(approach_geometry="mesh")
+
+
+def prongs_row(filled: bool) -> dict:
+    """Two 8 mm prongs along x, 32 mm apart, on a base: the tines of a fork with one gap.
+
+    ``filled``: the collision shape is the convex hull of the whole tool, as
+    a coarse decomposition makes it, which fills the gap.
+    """
+    box = trimesh.creation.box
+    parts = [("handle", box([0.04, 0.048, 0.01], [[1, 0, 0, -0.04], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))]
+    parts += [("tines", box([0.08, 0.008, 0.01], [[1, 0, 0, 0.02], [0, 1, 0, y], [0, 0, 1, 0], [0, 0, 0, 1]]))
+              for y in (-0.02, 0.02)]
+    row = model_row("prongs", "fork", parts)
+    if filled:
+        hull = trimesh.util.concatenate([mesh for _, mesh in parts]).convex_hull
+        row["convex_parts"] = [{"vertices": hull.vertices.tolist(), "faces": hull.faces.tolist()}]
+        # Another id: a process keeps one collision file per model id.
+        row["model_id"] = row["model_id"][::-1]
+    return row
+
+
+def test_mesh_approach_passes_a_gap_that_the_hulls_fill() -> None:
+    # One prong grasped across y: finger A goes down into the gap.
+    prong = ([0.03, 0.02, 0.0], ACROSS_Y, 0.018)
+    assert trial(prongs_row(filled=True), *prong).fail_reason == "approach_collision"
+    assert trial(prongs_row(filled=False), *prong).stable
+    for filled in (True, False):
+        assert trial(prongs_row(filled), *prong, params=MESH_APPROACH).fail_reason != "approach_collision"
+    # Both tests still see the prong itself: a pre-grasp opening narrower than it.
+    narrow = ([0.03, 0.02, 0.0], ACROSS_Y, 0.004)
+    assert trial(prongs_row(filled=False), *narrow, params=MESH_APPROACH).fail_reason == "approach_collision"
+
+
+def roof_row() -> dict:
+    """A 15 mm bar along x with a plate 6 cm above it, joined by a post 8 cm off the grasp."""
+    box = trimesh.creation.box
+    def at(x, z):
+        return [[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, z], [0, 0, 0, 1]]
+    return model_row("roofed", "knife", [("handle", box([0.2, 0.015, 0.015], at(0.0, 0.0))),
+                                         ("handle", box([0.01, 0.015, 0.07], at(0.08, 0.035))),
+                                         ("handle", box([0.1, 0.1, 0.005], at(0.0, 0.0725)))])
+
+
+@pytest.mark.parametrize("params", [PARAMS, MESH_APPROACH], ids=["hulls", "mesh"])
+def test_approach_sweeps_the_path_not_only_the_grasp_pose(params) -> None:
+    # At the grasp pose the palm ends below the plate; on the way in it crosses it.
+    roofed = roof_row()
+    assert trial(roofed, [0.0, 0.0, 0.0], ACROSS_Y, 0.025, params=params).fail_reason == "approach_collision"
+    short = params.model_copy(update={"approach_distance": 0.0})
+    assert trial(roofed, [0.0, 0.0, 0.0], ACROSS_Y, 0.025, params=short).fail_reason != "approach_collision"
 
 
 def test_heavy_slippery_block_slips_on_lift() -> None:
@@ -223,6 +279,9 @@ def test_keys_follow_parameters_and_seed(tmp_path, models) -> None:
     assert base == [shard.key for shard in stage.planned(ChecksStageParams(), 0, upstream)]
     assert base[0] != stage.planned(PARAMS, 1, upstream)[0].key
     assert base[0] != stage.planned(ChecksStageParams(lift_height=0.2), 0, upstream)[0].key
+    # Options off by default keep the keys of pipelines that leave them out.
+    assert base == [shard.key for shard in stage.planned(ChecksStageParams(approach_geometry="hulls"), 0, upstream)]
+    assert base[0] != stage.planned(MESH_APPROACH, 0, upstream)[0].key
 
 
 def test_trial_seeds_depend_on_the_grasp_not_on_its_neighbours() -> None:

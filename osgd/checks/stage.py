@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from osgd.checks.params import ChecksStageParams
 from osgd.checks.summary import acceptance_counts, format_acceptance
-from osgd.checks.trial import TrialResult, run_trial
+from osgd.checks.trial import TrialResult, approach_surface, run_trial
 from osgd.contract.schemas import CHECKS, vectors_from_arrow
 from osgd.contract.shards import ShardRecord
 from osgd.gripper import PANDA, Gripper
@@ -43,6 +43,22 @@ def trial_seed(seed: int, model_id: str, grasp_id: int) -> np.random.Generator:
     """
     model_number = int.from_bytes(hashlib.sha256(model_id.encode("utf-8")).digest()[:8], "little")
     return np.random.default_rng([int(seed), model_number, int(grasp_id)])
+
+
+class _ApproachSurfaces:
+    """Each model's surface samples for the ``mesh`` approach test, made once per item (None for ``hulls``)."""
+
+    def __init__(self, params: ChecksStageParams) -> None:
+        self.params = params
+        self.surfaces: dict[str, np.ndarray] = {}
+
+    def of(self, model: Mapping) -> np.ndarray | None:
+        if self.params.approach_geometry != "mesh":
+            return None
+        model_id = model["model_id"]
+        if model_id not in self.surfaces:
+            self.surfaces[model_id] = approach_surface(model, self.params.approach_surface_spacing)
+        return self.surfaces[model_id]
 
 
 class ChecksStage(Stage):
@@ -108,11 +124,12 @@ class ChecksStage(Stage):
             key=lambda index: (grasp_model_ids[index], grasp_ids[index]),
         )
         rows: list[dict] = []
+        surfaces = _ApproachSurfaces(params)
         for index in order:
             model_id, grasp_id = grasp_model_ids[index], int(grasp_ids[index])
             result: TrialResult = run_trial(
                 model_rows[model_id], positions[index], quaternions[index], float(widths[index]),
-                params, gripper, trial_seed(seed, model_id, grasp_id),
+                params, gripper, trial_seed(seed, model_id, grasp_id), surface=surfaces.of(model_rows[model_id]),
             )
             rows.append({"model_id": model_id, "grasp_id": grasp_id, **dataclasses.asdict(result)})
         stable = sum(row["stable"] for row in rows)

@@ -10,6 +10,10 @@ GraspGen (REFERENCE section 5) in a world with no floor:
    dynamic motion: a free-floating object pushed aside by the hand would
    otherwise still count as reached. Any pose where the object enters the
    hand deeper than ``approach_penetration`` is an ``approach_collision``.
+   ``approach_geometry`` says what the object is here: its convex parts in
+   pybullet (``hulls``), or samples of its own surface (``mesh``), which
+   keep the concavities a decomposition fills (between a screwdriver's
+   handle and shaft, between a pair of pliers' jaws).
 2. **Close.** Gravity is off: the object floats where the grasp says, so
    fingertips never stop on a floor above a thin object (REFERENCE section 8)
    and the object is free to centre itself between the pads, as it would on
@@ -50,10 +54,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import trimesh
 from scipy.spatial.transform import Rotation
 
-from osgd.checks.hand import FINGER_A, FINGER_B, SimulatedHand, create_hand
+from osgd.checks.hand import CONVEX_HULL_MARGIN, FINGER_A, FINGER_B, SimulatedHand, create_hand
 from osgd.checks.params import ChecksStageParams
+from osgd.grasps.geometry import ObjectSurface
 from osgd.gripper import Gripper
 from osgd.physics import ObjectBody, create_object_body, process_client, pybullet_module
 
@@ -69,6 +75,9 @@ GRASP_QUATERNION_IN_WORLD = np.array([1.0, 0.0, 0.0, 0.0])
 #: During the shake the hold is tested every this many steps (cheaper than
 #: every step; a dropped object falls clear of the pads within a few).
 _HOLD_CHECK_INTERVAL = 8
+
+#: Cap on the surface samples of the ``mesh`` approach test (the spacing grows past it).
+MAX_APPROACH_SAMPLES = 200_000
 
 
 @dataclass(frozen=True)
@@ -218,6 +227,72 @@ def _approach_collides(trial: _Trial, position: np.ndarray, quaternion: np.ndarr
     return False
 
 
+def approach_surface(model: Mapping[str, Any], spacing: float) -> np.ndarray:
+    """Samples of a model's surface for the ``mesh`` approach test.
+
+    Every vertex plus random points, one per ``spacing**2`` of area
+    (:meth:`osgd.grasps.geometry.ObjectSurface.sample`, drawn from a fixed
+    seed, so that a model always gets the same samples).
+
+    Parameters
+    ----------
+    model : mapping
+        A ``models`` row: ``vertices`` (V, 3) and ``faces`` (F, 3).
+    spacing : float
+        m.
+
+    Returns
+    -------
+    (P, 3) float64
+        Object frame, m.
+    """
+    mesh = trimesh.Trimesh(np.asarray(model["vertices"], dtype=np.float64).reshape(-1, 3),
+                           np.asarray(model["faces"], dtype=np.int64).reshape(-1, 3), process=False)
+    no_parts = np.full(len(mesh.faces), -1, dtype=np.int64)
+    return ObjectSurface.sample(mesh, no_parts, spacing, np.random.default_rng(0), MAX_APPROACH_SAMPLES).points
+
+
+def approach_hits_surface(
+    surface: np.ndarray, grasp_position: np.ndarray, grasp_quaternion: np.ndarray, opening: float,
+    params: ChecksStageParams, gripper: Gripper,
+) -> bool:
+    """Whether the open hand, swept in from the pre-grasp pose, takes a surface sample into one of its boxes.
+
+    The hand backed off by ``b`` along its approach sees a sample at ``z +
+    b`` of its frame; over every ``b`` from 0 to ``approach_distance`` a
+    box's slab ``|z - c| < h - penetration`` therefore sweeps ``z``
+    in ``(c - h + penetration - approach_distance, c + h - penetration)``.
+    This is the sweep of :func:`_approach_collides` without its
+    ``approach_spacing``, which is finer than every box. The tolerated
+    penetration is the hull test's: ``approach_penetration`` less the
+    ``CONVEX_HULL_MARGIN`` by which pybullet's hulls stand proud of the
+    parts (1 mm into the true surface, the grasps stage's margin).
+
+    Parameters
+    ----------
+    surface : (P, 3) float
+        :func:`approach_surface`, object frame, m.
+    grasp_position : (3,) float
+        Grasp centre in the object frame, m.
+    grasp_quaternion : (4,) float
+        Gripper frame in the object frame, (x, y, z, w).
+    opening : float
+        Pre-grasp opening, m.
+    params : ChecksStageParams
+    gripper : Gripper
+    """
+    rotation = Rotation.from_quat(grasp_quaternion).as_matrix()
+    local = (np.asarray(surface) - grasp_position) @ rotation
+    penetration = max(params.approach_penetration - CONVEX_HULL_MARGIN, 0.0)
+    for _name, centre, half in gripper.boxes(opening):
+        inner = half - penetration
+        across = np.all(np.abs(local[:, :2] - centre[:2]) < inner[:2], axis=1)
+        along = local[across, 2]
+        if np.any((along > centre[2] - inner[2] - params.approach_distance) & (along < centre[2] + inner[2])):
+            return True
+    return False
+
+
 def _shake_targets(
     position: np.ndarray, quaternion: np.ndarray, params: ChecksStageParams, rng: np.random.Generator
 ) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -341,6 +416,7 @@ def run_trial(
     gripper: Gripper,
     rng: np.random.Generator,
     client: int | None = None,
+    surface: np.ndarray | None = None,
 ) -> TrialResult:
     """Simulate one grasp of one model: both criteria in one trial.
 
@@ -361,6 +437,10 @@ def run_trial(
         Draws the frame of the shake directions.
     client : int, optional
         pybullet client; this process's :func:`osgd.physics.process_client` by default.
+    surface : (P, 3) float, optional
+        The model's :func:`approach_surface` for ``approach_geometry =
+        "mesh"`` (computed here when not given; pass it for many trials of
+        one model).
 
     Returns
     -------
@@ -379,7 +459,14 @@ def run_trial(
     trial = _Trial(client, hand, body, params)
     opening = float(np.clip(width, 0.0, gripper.max_opening))
 
-    if _approach_collides(trial, np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening):
+    if params.approach_geometry == "mesh":
+        if surface is None:
+            surface = approach_surface(model, params.approach_surface_spacing)
+        collides = approach_hits_surface(surface, np.asarray(grasp_position, dtype=np.float64),
+                                         np.asarray(grasp_quaternion, dtype=np.float64), opening, params, gripper)
+    else:
+        collides = _approach_collides(trial, np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening)
+    if collides:
         return trial.result("approach_collision")
     hand.reset(np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening)
     if not _close(trial, gripper.grip_force if params.grip_force is None else params.grip_force):
