@@ -33,6 +33,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import functools
+import hashlib
 import shutil
 import tempfile
 from collections.abc import Iterator, Mapping
@@ -197,6 +198,16 @@ def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(moments, 1e-9), Rotation.from_matrix(axes).as_quat()
 
 
+def _compound_name(model: Mapping[str, Any], max_hull_vertices: int) -> str:
+    """The file name of a model's collision compound in this process's folder.
+
+    The model id names the mesh, not its convex parts: one mesh cut by two
+    decomposition presets (the ``decomposition`` column) gets two files.
+    """
+    decomposition = hashlib.sha256(str(model.get("decomposition", "")).encode("utf-8")).hexdigest()[:12]
+    return f"{model['model_id']}-{decomposition}-{max_hull_vertices}.obj"
+
+
 def create_object_body(
     client: int,
     model: Mapping[str, Any],
@@ -233,8 +244,8 @@ def create_object_body(
     pybullet = pybullet_module()
     if not len(model["convex_parts"]):
         raise ValueError(f"model {model['model_id']}: no convex parts to collide with")
-    # One compound file per model and process; later bodies of the model reuse it.
-    obj_path = _obj_folder() / f"{model['model_id']}-{max_hull_vertices}.obj"
+    # One compound file per model, decomposition and process; later bodies of the model reuse it.
+    obj_path = _obj_folder() / _compound_name(model, max_hull_vertices)
     if not obj_path.exists():
         parts = [_cell_mesh(part["vertices"], part["faces"]) for part in model["convex_parts"]]
         if max_hull_vertices > 0:

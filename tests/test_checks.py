@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pyarrow as pa
@@ -112,8 +113,8 @@ def prongs_row(filled: bool) -> dict:
     if filled:
         hull = trimesh.util.concatenate([mesh for _, mesh in parts]).convex_hull
         row["convex_parts"] = [{"vertices": hull.vertices.tolist(), "faces": hull.faces.tolist()}]
-        # Another id: a process keeps one collision file per model id.
-        row["model_id"] = row["model_id"][::-1]
+        # The same mesh, another decomposition: the process must not reuse the exact parts' collision file.
+        row["decomposition"] = json.dumps({"method": "convex_hull"})
     return row
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pybullet
 import pytest
@@ -64,6 +66,22 @@ def test_compound_keeps_the_concave_notch_open() -> None:
         assert not hit(0.0, 0.035)
         assert hit(0.105, 0.035)  # the head
         assert hit(0.0, 0.0)  # the handle
+
+
+def test_one_mesh_cut_two_ways_collides_as_each_cut_in_one_process() -> None:
+    # The model id names the mesh; the hull of the whole hammer (another
+    # decomposition of it) fills the notch that the exact parts leave open.
+    hammer = model_row("hammer", "hammer", hammer_parts())
+    hull = trimesh.util.concatenate([mesh for _, mesh in hammer_parts()]).convex_hull
+    filled = {**hammer, "decomposition": json.dumps({"method": "convex_hull"}),
+              "convex_parts": [{"vertices": hull.vertices.tolist(), "faces": hull.faces.tolist()}]}
+    notch = []
+    for row in (hammer, filled, hammer):
+        with physics_client() as client:
+            create_object_body(client, row, np.array([0.0, 0.0, 1.0]))
+            pybullet.performCollisionDetection(physicsClientId=client)
+            notch.append(pybullet.rayTest([0.0, 0.035, 0.5], [0.0, 0.035, 1.5], physicsClientId=client)[0][0] >= 0)
+    assert notch == [False, True, False]
 
 
 @pytest.mark.parametrize("row", fixture_models(), ids=lambda row: row["name"])
