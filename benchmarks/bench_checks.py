@@ -56,8 +56,7 @@ def bench_fixture_trials(count: int, params: ChecksStageParams, label: str) -> f
     rng = np.random.default_rng(0)
     # As the stage does: each model's surface sampled once for the mesh approach (timed).
     start = time.perf_counter()
-    surfaces = [approach_surface(model, params.approach_surface_spacing) if params.approach_geometry == "mesh"
-                else None for model in models]
+    surfaces = [approach_surface(model, params) for model in models]
     sampling = time.perf_counter() - start
     run_trial(models[2], np.zeros(3), quaternion, 0.05, params, PANDA, rng)  # warm-up: imports, client
     outcomes: dict[str, int] = {}

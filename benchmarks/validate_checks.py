@@ -106,7 +106,7 @@ def _model_trials(job: dict[str, Any]) -> list[dict[str, Any]]:
     model, grasps, params, seed = job["model"], job["grasps"], ChecksStageParams(**job["params"]), job["seed"]
     mesh = trimesh.Trimesh(np.asarray(model["vertices"]), np.asarray(model["faces"]), process=False)
     long_axis = principal_frame(mesh).axes[0]
-    surface = approach_surface(model, params.approach_surface_spacing) if params.approach_geometry == "mesh" else None
+    surface = approach_surface(model, params)
     rows = []
     for grasp in grasps:
         object_width = width_at_grasp(mesh, np.asarray(grasp["position"]), np.asarray(grasp["quaternion"]))

@@ -45,22 +45,6 @@ def trial_seed(seed: int, model_id: str, grasp_id: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), model_number, int(grasp_id)])
 
 
-class _ApproachSurfaces:
-    """Each model's surface samples for the ``mesh`` approach test, made once per item (None for ``hulls``)."""
-
-    def __init__(self, params: ChecksStageParams) -> None:
-        self.params = params
-        self.surfaces: dict[str, np.ndarray] = {}
-
-    def of(self, model: Mapping) -> np.ndarray | None:
-        if self.params.approach_geometry != "mesh":
-            return None
-        model_id = model["model_id"]
-        if model_id not in self.surfaces:
-            self.surfaces[model_id] = approach_surface(model, self.params.approach_surface_spacing)
-        return self.surfaces[model_id]
-
-
 class ChecksStage(Stage):
     """Simulated grasp trials in pybullet."""
 
@@ -124,12 +108,12 @@ class ChecksStage(Stage):
             key=lambda index: (grasp_model_ids[index], grasp_ids[index]),
         )
         rows: list[dict] = []
-        surfaces = _ApproachSurfaces(params)
+        surfaces = {model_id: approach_surface(model, params) for model_id, model in model_rows.items()}
         for index in order:
             model_id, grasp_id = grasp_model_ids[index], int(grasp_ids[index])
             result: TrialResult = run_trial(
                 model_rows[model_id], positions[index], quaternions[index], float(widths[index]),
-                params, gripper, trial_seed(seed, model_id, grasp_id), surface=surfaces.of(model_rows[model_id]),
+                params, gripper, trial_seed(seed, model_id, grasp_id), surface=surfaces[model_id],
             )
             rows.append({"model_id": model_id, "grasp_id": grasp_id, **dataclasses.asdict(result)})
         stable = sum(row["stable"] for row in rows)

@@ -227,8 +227,8 @@ def _approach_collides(trial: _Trial, position: np.ndarray, quaternion: np.ndarr
     return False
 
 
-def approach_surface(model: Mapping[str, Any], spacing: float) -> np.ndarray:
-    """Samples of a model's surface for the ``mesh`` approach test.
+def approach_surface(model: Mapping[str, Any], params: ChecksStageParams) -> np.ndarray | None:
+    """Samples of a model's surface for the ``mesh`` approach test; None for ``hulls``, which needs none.
 
     Every vertex plus random points, one per ``spacing**2`` of area
     (:meth:`osgd.grasps.geometry.ObjectSurface.sample`, drawn from a fixed
@@ -238,18 +238,21 @@ def approach_surface(model: Mapping[str, Any], spacing: float) -> np.ndarray:
     ----------
     model : mapping
         A ``models`` row: ``vertices`` (V, 3) and ``faces`` (F, 3).
-    spacing : float
-        m.
+    params : ChecksStageParams
+        ``approach_geometry`` and ``approach_surface_spacing``.
 
     Returns
     -------
-    (P, 3) float64
+    (P, 3) float64 or None
         Object frame, m.
     """
+    if params.approach_geometry != "mesh":
+        return None
     mesh = trimesh.Trimesh(np.asarray(model["vertices"], dtype=np.float64).reshape(-1, 3),
                            np.asarray(model["faces"], dtype=np.int64).reshape(-1, 3), process=False)
     no_parts = np.full(len(mesh.faces), -1, dtype=np.int64)
-    return ObjectSurface.sample(mesh, no_parts, spacing, np.random.default_rng(0), MAX_APPROACH_SAMPLES).points
+    return ObjectSurface.sample(mesh, no_parts, params.approach_surface_spacing, np.random.default_rng(0),
+                                MAX_APPROACH_SAMPLES).points
 
 
 def approach_hits_surface(
@@ -461,7 +464,7 @@ def run_trial(
 
     if params.approach_geometry == "mesh":
         if surface is None:
-            surface = approach_surface(model, params.approach_surface_spacing)
+            surface = approach_surface(model, params)
         collides = approach_hits_surface(surface, np.asarray(grasp_position, dtype=np.float64),
                                          np.asarray(grasp_quaternion, dtype=np.float64), opening, params, gripper)
     else:

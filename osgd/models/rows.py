@@ -19,8 +19,8 @@ import pyarrow.compute as pc
 
 #: The ``models`` columns a physics body or a rendering needs (``osgd.physics.create_object_body``,
 #: ``osgd.samples.renderer.RenderObject``).
-BODY_COLUMNS = ("model_id", "category", "vertices", "faces", "convex_parts", "mass", "center_of_mass", "inertia",
-                "friction")
+BODY_COLUMNS = ("model_id", "category", "vertices", "faces", "convex_parts", "decomposition", "mass", "center_of_mass",
+                "inertia", "friction")
 
 
 def nested_rows(array: pa.Array, width: int, dtype: type) -> list[np.ndarray]:
@@ -81,13 +81,16 @@ def model_rows(table: pa.Table, model_ids: Iterable[str] | None = None) -> dict[
         ``vertices`` (V, 3) float64, ``faces`` (F, 3) int64, ``convex_parts``
         (list of dicts of ``vertices`` and ``faces`` arrays), ``mass``,
         ``center_of_mass`` (3,), ``inertia`` (9,), ``friction`` (3,), plus
-        ``model_id`` and ``category``. The other columns are left out.
+        ``model_id``, ``category`` and ``decomposition`` (which names the
+        convex parts, :func:`osgd.physics.create_object_body`). The other
+        columns are left out.
     """
     table = table.select(list(BODY_COLUMNS))
     if model_ids is not None:
         wanted = pa.array(sorted(set(model_ids)), type=pa.string())
         table = table.filter(pc.is_in(table["model_id"], value_set=wanted))
-    scalars = table.select(["model_id", "category", "mass", "center_of_mass", "inertia", "friction"]).to_pylist()
+    scalars = table.select(["model_id", "category", "decomposition", "mass", "center_of_mass", "inertia",
+                            "friction"]).to_pylist()
     vertices = nested_rows(table["vertices"], 3, np.float64)
     faces = nested_rows(table["faces"], 3, np.int64)
     convex_parts = _convex_parts(table["convex_parts"])
