@@ -12,7 +12,14 @@ or any candidate at all does (the ceilings of the ranking):
 - ``smooth-cells``: P(stable) averaged over the 3 x 3 cells around each
   candidate, same anchor angle (edges average what exists);
 - ``smooth-cells-angles``: the 3 x 3 cells and the two neighbouring anchor
-  angles.
+  angles;
+- ``own-mask oracle``: P(stable) of the candidates whose centre lies on the
+  object's own visible pixels (the sample's instance mask, which the model
+  never sees): the ceiling of telling the object from its neighbours.
+
+It also says where the detector's own top-1 candidate lands: on the
+object's own pixels, on another object's, or on the table
+(``top-1 on ...``).
 
     python benchmarks/grasp_ranking.py runs/cpu-recipe/tog/checkpoint.pt --data data --pipeline recipe \
         --max-samples 100 [--json out.json]
@@ -84,18 +91,38 @@ def claimed_objects(detections: Detections, truth: GroundTruth) -> list[tuple[in
     return pairs
 
 
-def tally(detections: Detections, truth: GroundTruth, counts: dict[str, int]) -> None:
-    """Add one image's hits of every ranking to ``counts``."""
+#: Where a candidate's centre lies in the instance mask, by the name counted.
+LANDINGS = ("top-1 on own object", "top-1 on another object", "top-1 on the table")
+
+
+def landing(mask: np.ndarray, centres: np.ndarray, own_value: int) -> np.ndarray:
+    """0 own object, 1 another object, 2 table, for (n, 2) pixel centres (clipped to the image)."""
+    height, width = mask.shape
+    values = mask[np.clip(np.round(centres[:, 1]).astype(int), 0, height - 1),
+                  np.clip(np.round(centres[:, 0]).astype(int), 0, width - 1)]
+    return np.where(values == own_value, 0, np.where(values == 0, 2, 1))
+
+
+def tally(detections: Detections, truth: GroundTruth, mask: np.ndarray, object_indices: np.ndarray,
+          counts: dict[str, int], distances: dict[str, list[float]]) -> None:
+    """Add one image's hits of every ranking, and where the top-1 lands, to ``counts``; the top-1's distance
+    (px) to the nearest ground-truth grasp centre of its object to ``distances["match"]`` or ``["miss"]``."""
     for detection, target in claimed_objects(detections, truth):
-        matches = grasp_match_matrix(detections.grasps[detection],
-                                     truth.grasp_rectangles[truth.grasp_objects == target]).any(axis=1)
+        object_grasps = truth.grasp_rectangles[truth.grasp_objects == target]
+        matches = grasp_match_matrix(detections.grasps[detection], object_grasps).any(axis=1)
         stability = detections.grasp_stability[detection]
+        top = detections.grasps[detection][np.argmax(stability)]
+        distances["match" if matches[np.argmax(stability)] else "miss"].append(
+            float(np.linalg.norm(object_grasps[:, :2] - top[:2], axis=1).min()))
+        where = landing(mask, detections.grasps[detection][:, :2], int(object_indices[target]) + 1)
         counts["objects"] += 1
         counts["any candidate"] += int(matches.any())
         for name, rank in RANKINGS.items():
             order = np.argsort(-rank(stability), kind="stable")
             counts[name] += int(matches[order[0]])
             counts[f"{name} top5"] += int(matches[order[:5]].any())
+        counts["own-mask oracle"] += int(matches[np.argmax(np.where(where == 0, stability, -1.0))])
+        counts[LANDINGS[where[np.argmax(stability)]]] += 1
 
 
 def main() -> None:
@@ -110,21 +137,31 @@ def main() -> None:
     model, config = load_checkpoint(arguments.checkpoint, device="cpu")
     model.eval()
     counts: dict[str, int] = {"objects": 0, "any candidate": 0} | {
-        key: 0 for name in RANKINGS for key in (name, f"{name} top5")}
+        key: 0 for name in RANKINGS for key in (name, f"{name} top5")} | dict.fromkeys(
+        ("own-mask oracle", *LANDINGS), 0)
+    distances: dict[str, list[float]] = {"match": [], "miss": []}
     samples = iter_samples(arguments.data, split=arguments.split,
                            shards=sample_shards(arguments.data, arguments.pipeline))
     for sample in islice(samples, arguments.max_samples):
         image, scale = depth_to_tensor(sample.depth, config.get("image_size"),
                                        config["depth_reference"])
-        tally(run_model(model, image, scale), GroundTruth.from_sample(sample), counts)
+        tally(run_model(model, image, scale), GroundTruth.from_sample(sample), sample.mask, sample.object_indices,
+              counts, distances)
     objects = max(counts["objects"], 1)
     shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}
-    print(f"{counts['objects']} claimed objects with grasps; share whose top-1 (top-5) grasp matches one of theirs:")
+    print(f"{counts['objects']} claimed objects with grasps; share whose top-1 (top-5) grasp matches one of theirs, "
+          "and where the top-1 lands:")
     for name, share in shares.items():
         print(f"  {name:28s} {share:5.1f} %")
+    quartiles = {outcome: [round(float(value), 1) for value in np.percentile(values, (25, 50, 75))] if values else []
+                 for outcome, values in distances.items()}
+    for outcome, values in quartiles.items():
+        print(f"  top-1 {outcome}es ({len(distances[outcome])}): distance to the nearest ground-truth grasp centre, "
+              f"quartiles {values} px")
     if arguments.json:
         arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "objects": counts["objects"],
-                                              "shares_percent": shares}, indent=1) + "\n")
+                                              "shares_percent": shares,
+                                              "top1_distance_quartiles_px": quartiles}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

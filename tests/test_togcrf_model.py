@@ -11,7 +11,15 @@ from togcrf import evaluate, reproduce, train
 from togcrf.anchors import CANDIDATES_PER_ROI, roi_anchors
 from togcrf.data import SamplesDataset, collate
 from togcrf.losses import LOSS_KEYS
-from togcrf.model import MODEL_NAMES, MODELS, PAPER_NAMES, GraspDetector, build_model, padded_object_grasps
+from togcrf.model import (
+    MODEL_NAMES,
+    MODELS,
+    PAPER_NAMES,
+    GraspDetector,
+    build_model,
+    object_map_targets,
+    padded_object_grasps,
+)
 
 #: A small configuration that keeps CPU tests quick.
 SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
@@ -50,7 +58,7 @@ def test_the_registry_gives_table_two_its_rows_and_every_module_its_names():
     assert reproduce.TABLE_MODELS is MODEL_NAMES and evaluate.PAPER_NAMES is PAPER_NAMES
     # The losses, in the order of the columns of metrics.csv.
     assert LOSS_KEYS == ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability",
-                         "grasp_regression", "grasp_task")
+                         "grasp_regression", "grasp_task", "grasp_object_map")
     assert train.LOSS_TERMS is LOSS_KEYS
 
 
@@ -155,3 +163,48 @@ def test_images_without_objects_train_with_zero_grasp_losses():
     assert all(torch.isfinite(value) for value in losses.values())
     assert losses["grasp_task"].item() == 0 and losses["rcnn_class"].item() > 0
     sum(losses.values()).backward()
+
+
+def test_object_map_targets_are_the_share_of_each_cell_on_the_rois_own_object():
+    left_right = torch.zeros(40, 40, dtype=torch.uint8)
+    left_right[:, :20], left_right[:, 20:] = 1, 2
+    top = torch.zeros(32, 48, dtype=torch.uint8)
+    top[:16] = 5
+    targets = [{"instance_mask": left_right, "mask_values": torch.tensor([1, 2])},
+               {"instance_mask": top, "mask_values": torch.tensor([5])}]
+    # RoI 0: object 0 (left half) seen through a box that reaches 8 px into object 1; RoI 1: the same box
+    # for object 1; RoI 2: image 1's object (object 2 of the batch), a box over the whole image.
+    rois = torch.tensor([[0.0, 0.0, 28.0, 28.0], [0.0, 0.0, 28.0, 28.0], [0.0, 0.0, 48.0, 32.0]])
+    shares = object_map_targets(targets, rois, torch.tensor([0, 1, 2])).reshape(3, 7, 7)
+    assert shares.shape == (3, 7, 7) and ((shares >= 0) & (shares <= 1)).all()
+    # cells are 4 px wide: columns 0-4 lie left of x = 20, columns 5-6 right of it (row by row, as the head)
+    assert torch.allclose(shares[0, :, :5], torch.ones(7, 5)) and torch.allclose(shares[0, :, 5:], torch.zeros(7, 2))
+    assert torch.allclose(shares[1], 1 - shares[0])
+    assert torch.allclose(shares[2, :3], torch.ones(3, 7)) and torch.allclose(shares[2, 4:], torch.zeros(3, 7))
+    with pytest.raises(ValueError, match="instance masks"):
+        object_map_targets([{"boxes": torch.zeros(1, 4)}], rois[:1], torch.tensor([0]))
+
+
+def test_the_object_map_trains_and_weighs_the_stability_of_each_cell(batch):
+    torch.manual_seed(0)
+    images, targets, _ = batch
+    assert all("instance_mask" in target and "mask_values" in target for target in targets)
+    plain = build_model("tog", "resnet18", **SMALL)
+    plain.train()
+    assert plain.grasp_head.object_map is None and plain(images, targets)["grasp_object_map"].item() == 0
+    model = build_model("tog", "resnet18", grasp_object_map=True, box_score_threshold=0.0, **SMALL)
+    model.train()
+    losses = model(images, targets)
+    assert torch.isfinite(losses["grasp_object_map"]) and losses["grasp_object_map"] > 0
+    sum(losses.values()).backward()
+    assert float(model.grasp_head.object_map.weight.grad.abs().sum()) > 0
+    model.eval()
+    stabilities = {}
+    for bias in (-20.0, 20.0):
+        with torch.no_grad():
+            model.grasp_head.object_map.bias.fill_(bias)
+            stabilities[bias] = torch.cat([output["grasp_stability"] for output in model(images)])
+    assert len(stabilities[20.0]) > 0
+    assert stabilities[-20.0].max() < 1e-6 < stabilities[20.0].min()
+    with pytest.raises(ValueError, match="roi"):
+        build_model("fcgn-task", "resnet18", grasp_object_map=True, **SMALL)

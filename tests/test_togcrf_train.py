@@ -222,7 +222,7 @@ def fitted_fractions(data_dir, run_dir, samples: int, pipeline: str = "synthetic
     with torch.no_grad():
         outputs = model(images)
         image_list = batch_images(images)
-        regression, stability, task_log_probs, anchors = model.grasp_outputs(
+        regression, stability, task_log_probs, anchors, _ = model.grasp_outputs(
             model.backbone(image_list.tensors), [target["boxes"] for target in targets], image_list.image_sizes)
     true_box_rectangles = decode(regression, anchors)
     true_box_stability = stability.softmax(dim=-1)[..., 1]

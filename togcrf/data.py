@@ -320,19 +320,29 @@ def augment(
     return out_images, new_boxes.astype(np.float32), new_rectangles.astype(np.float32)
 
 
-def sample_targets(sample: Sample, boxes: np.ndarray, rectangles: np.ndarray) -> dict[str, torch.Tensor]:
+def sample_targets(sample: Sample, boxes: np.ndarray, rectangles: np.ndarray,
+                   instance_mask: np.ndarray | None = None) -> dict[str, torch.Tensor]:
     """The model's target dict of a sample (contract of ``togcrf.model``).
 
     Objects are numbered as in ``sample.boxes``; labels are category index + 1
-    (0 is the background class).
+    (0 is the background class). With ``instance_mask`` (the sample's
+    ``mask`` in the network input's frame: 0 background, scene object index
+    + 1 on each object's visible pixels) the dict also holds it as
+    ``instance_mask`` (H, W) and each object's value in it as
+    ``mask_values`` (N,), which train the grasp head's object map
+    (``ModelOptions.grasp_object_map``).
     """
-    return {
+    targets = {
         "boxes": torch.as_tensor(boxes, dtype=torch.float32).reshape(-1, 4),
         "labels": torch.as_tensor(sample.category_labels + 1, dtype=torch.int64),
         "grasps": torch.as_tensor(rectangles, dtype=torch.float32).reshape(-1, 5),
         "grasp_objects": torch.as_tensor(sample.grasp_objects, dtype=torch.int64),
         "grasp_tasks": torch.as_tensor(sample.grasp_tasks, dtype=torch.int64),
     }
+    if instance_mask is not None:
+        targets["instance_mask"] = torch.from_numpy(np.ascontiguousarray(instance_mask, dtype=np.uint8))
+        targets["mask_values"] = torch.as_tensor(np.asarray(sample.object_indices) + 1, dtype=torch.int64)
+    return targets
 
 
 def drop_degenerate_objects(targets: dict[str, torch.Tensor], min_size: float = 1.0) -> dict[str, torch.Tensor]:
@@ -346,13 +356,16 @@ def drop_degenerate_objects(targets: dict[str, torch.Tensor], min_size: float = 
         return targets
     new_index = torch.cumsum(keep.to(torch.int64), 0) - 1
     grasp_keep = keep[targets["grasp_objects"]] if len(targets["grasp_objects"]) else keep[:0]
-    return {
+    kept = {
         "boxes": boxes[keep],
         "labels": targets["labels"][keep],
         "grasps": targets["grasps"][grasp_keep],
         "grasp_objects": new_index[targets["grasp_objects"][grasp_keep]],
         "grasp_tasks": targets["grasp_tasks"][grasp_keep],
     }
+    if "mask_values" in targets:
+        kept |= {"instance_mask": targets["instance_mask"], "mask_values": targets["mask_values"][keep]}
+    return kept
 
 
 class SamplesDataset(Dataset):
@@ -457,9 +470,10 @@ class SamplesDataset(Dataset):
         else:
             augmentation = Augmentation()
         height = normalise_depth(sample.depth, self.depth_reference)
-        images, boxes, rectangles = augment([height], sample.boxes, sample.grasp_rectangles, augmentation, base_scale)
+        images, boxes, rectangles = augment([height, sample.mask], sample.boxes, sample.grasp_rectangles,
+                                            augmentation, base_scale, (cv2.INTER_LINEAR, cv2.INTER_NEAREST))
         image = torch.from_numpy(np.ascontiguousarray(images[0]))[None]
-        targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles))
+        targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles, images[1]))
         return image, targets, sample.sample_id
 
 

@@ -7,6 +7,10 @@
 - task: cross entropy of the positive candidates' task targets against the
   log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG).
 
+- object map (``ModelOptions.grasp_object_map``; zero without it): binary
+  cross entropy of each RoI cell's "on the RoI's own object" logit against
+  the share of the cell that the object's instance mask covers.
+
 The RPN and RCNN losses are torchvision's (``togcrf.model``). ``LOSS_KEYS``
 are the names of the losses every model returns in train mode, defined here
 only (``togcrf.model`` and ``togcrf.train`` import them).
@@ -23,10 +27,10 @@ DEFAULT_NEGATIVE_RATIO = 3
 #: The losses of a model in train mode, in the order of the columns of metrics.csv (``togcrf.train``): RPN
 #: objectness and box, RCNN class and box, then the grasp branch's (``GRASP_LOSS_KEYS``).
 LOSS_KEYS = ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
-             "grasp_task")
+             "grasp_task", "grasp_object_map")
 
 #: The losses of :func:`grasp_losses`: stability, regression, task.
-GRASP_LOSS_KEYS = LOSS_KEYS[4:]
+GRASP_LOSS_KEYS = LOSS_KEYS[4:7]
 
 
 def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int,
@@ -108,6 +112,22 @@ def grasp_losses(
     task_per_candidate = -(task_targets * task_log_probs.float()).sum(dim=-1)
     task = (task_per_candidate * positive).sum() / positives
     return dict(zip(GRASP_LOSS_KEYS, (stability, regression_loss, task), strict=True))
+
+
+def object_map_loss(logits: torch.Tensor | None, targets: torch.Tensor | None,
+                    reference: torch.Tensor) -> torch.Tensor:
+    """Binary cross entropy of the cells' "own object" logits; zero (on ``reference``'s graph) without them.
+
+    Parameters
+    ----------
+    logits, targets : (R, C) float or None
+        Per RoI cell; targets in [0, 1].
+    reference : tensor
+        Any output of the step, so that the zero keeps the loss on one device and graph.
+    """
+    if logits is None or targets is None or logits.numel() == 0:
+        return reference.sum() * 0
+    return functional.binary_cross_entropy_with_logits(logits.float(), targets.float())
 
 
 def top1_task_hits(
