@@ -154,14 +154,19 @@ def test_every_model_is_the_one_detector_with_its_grasp_branch():
         assert (model.crf is None) == (spec.crf_terms is None)
 
 
-def test_images_without_objects_train_with_zero_grasp_losses():
-    model = build_model("tog-crfs", "resnet18", **SMALL)
+@pytest.mark.parametrize("object_map", [False, True])
+def test_images_without_objects_train_with_zero_grasp_losses(object_map):
+    model = build_model("tog-crfs", "resnet18", grasp_object_map=object_map, **SMALL)
     model.train()
     empty = {"boxes": torch.zeros(0, 4), "labels": torch.zeros(0, dtype=torch.int64), "grasps": torch.zeros(0, 5),
-             "grasp_objects": torch.zeros(0, dtype=torch.int64), "grasp_tasks": torch.zeros(0, dtype=torch.int64)}
-    losses = model([torch.zeros(1, 64, 64), torch.zeros(1, 48, 64)], [empty, empty])
+             "grasp_objects": torch.zeros(0, dtype=torch.int64), "grasp_tasks": torch.zeros(0, dtype=torch.int64),
+             "mask_values": torch.zeros(0, dtype=torch.int64)}
+    targets = [empty | {"instance_mask": torch.zeros(64, 64, dtype=torch.uint8)},
+               empty | {"instance_mask": torch.zeros(48, 64, dtype=torch.uint8)}]
+    losses = model([torch.zeros(1, 64, 64), torch.zeros(1, 48, 64)], targets)
     assert all(torch.isfinite(value) for value in losses.values())
     assert losses["grasp_task"].item() == 0 and losses["rcnn_class"].item() > 0
+    assert losses["grasp_object_map"].item() == 0
     sum(losses.values()).backward()
 
 

@@ -116,17 +116,19 @@ def grasp_losses(
 
 def object_map_loss(logits: torch.Tensor | None, targets: torch.Tensor | None,
                     reference: torch.Tensor) -> torch.Tensor:
-    """Binary cross entropy of the cells' "own object" logits; zero (on ``reference``'s graph) without them.
+    """Binary cross entropy of the cells' "own object" logits; zero without them.
 
     Parameters
     ----------
     logits, targets : (R, C) float or None
-        Per RoI cell; targets in [0, 1].
+        Per RoI cell; targets in [0, 1]. None: the model has no object map.
     reference : tensor
-        Any output of the step, so that the zero keeps the loss on one device and graph.
+        Any output of the step: the zero of a model without an object map is made on its device.
     """
-    if logits is None or targets is None or logits.numel() == 0:
-        return reference.sum() * 0
+    if logits is None or targets is None:
+        return reference.new_zeros((), dtype=torch.float32)
+    if logits.numel() == 0:
+        return logits.float().sum() * 0  # no RoI: a zero that keeps the map's parameters in the graph
     return functional.binary_cross_entropy_with_logits(logits.float(), targets.float())
 
 

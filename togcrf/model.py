@@ -10,7 +10,8 @@ categories plus background), and one grasp branch, as torchvision's
 - "roi" (TOG and TOG-CRFs): on the pooled features of each RoI, 3
   ResBlocks, then three 3 x 3 convolutions with 4 x 5 regression, 4 x 2
   stability and 4 x 12 task channels: 196 candidates per RoI
-  (``togcrf.anchors``);
+  (``togcrf.anchors``); with ``grasp_object_map`` a fourth, one channel per
+  cell: the cell lies on the RoI's own object;
 - "image" (FCGN + Task, ``togcrf.fcgn``): the same convolutions on one FPN
   map of the whole image, 4 candidates per cell, given at inference to the
   detected boxes that contain them.
@@ -754,7 +755,8 @@ class GraspDetector(nn.Module):
             Depth images.
         targets : list of dict, optional
             Per image (train mode): ``boxes`` (N, 4), ``labels`` (N,), ``grasps`` (M, 5),
-            ``grasp_objects`` (M,) and ``grasp_tasks`` (M,).
+            ``grasp_objects`` (M,) and ``grasp_tasks`` (M,); with ``grasp_object_map`` also
+            ``instance_mask`` (H, W) and ``mask_values`` (N,) (``togcrf.data.sample_targets``).
 
         Returns
         -------
