@@ -5,8 +5,7 @@
   (hard negative mining as ROI-GD);
 - regression: smooth L1 on the encoded rectangles of positive candidates;
 - task: cross entropy of the positive candidates' task targets against the
-  log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG).
-
+  log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG);
 - object map (``ModelOptions.grasp_object_map``; zero without it): binary
   cross entropy of each RoI cell's "on the RoI's own object" logit against
   the share of the cell that the object's instance mask covers.

@@ -169,10 +169,10 @@ class ModelOptions:
         grasp (angle within 45 degrees) are never hard negatives (None:
         every anchor that is not positive may be; ``togcrf.anchors``).
     grasp_object_map : bool
-        The "roi" grasp head also predicts, per cell, whether the cell's
-        centre lies on the RoI's own object (trained from the samples'
-        instance masks, RoIAligned onto the 7 x 7 cells as Mask R-CNN's mask
-        targets); at inference a candidate's P(stable) is multiplied by its
+        The "roi" grasp head also predicts, per cell, whether the cell lies
+        on the RoI's own object (trained against the share of the cell that
+        the object's instance mask covers, RoIAligned onto the 7 x 7 cells as
+        Mask R-CNN's mask targets); at inference a candidate's P(stable) is multiplied by its
         cell's P(own object). Our addition (issue #15): in piles, a box holds
         parts of its neighbours, and the most stable candidate of a detection
         lay on another object in 18 % of the claimed objects.
@@ -357,7 +357,7 @@ class GraspHead(nn.Module):
         self.regression = nn.Conv2d(channels, self.anchors * 5, 3, padding=1)
         self.stability = nn.Conv2d(channels, self.anchors * 2, 3, padding=1)
         self.task = nn.Conv2d(channels, self.anchors * task_count, 3, padding=1)
-        #: One logit per cell: the cell's centre lies on the RoI's own object (``ModelOptions.grasp_object_map``).
+        #: One logit per cell: the cell lies on the RoI's own object (``ModelOptions.grasp_object_map``).
         self.object_map = nn.Conv2d(channels, 1, 3, padding=1) if object_map else None
         for layer in (self.regression, self.stability, self.task, self.object_map):
             if layer is not None:
