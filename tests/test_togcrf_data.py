@@ -158,7 +158,10 @@ def test_dataset_streams_the_split_with_targets_in_the_network_frame(synthetic_d
 
 
 def test_the_targets_hold_the_instance_mask_in_the_images_frame(synthetic_dir):
-    dataset = SamplesDataset(synthetic_dir, pipeline="synthetic", split="train", image_size=96, augment=True)
+    plain = SamplesDataset(synthetic_dir, pipeline="synthetic", split="train", image_size=96, augment=True)
+    assert not {"instance_mask", "mask_values"} & set(plain[0][1])
+    dataset = SamplesDataset(synthetic_dir, pipeline="synthetic", split="train", image_size=96, augment=True,
+                             instance_masks=True)
     for item in range(4):
         image, targets, _ = dataset[item]
         mask = targets["instance_mask"].numpy()

@@ -31,7 +31,7 @@ SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, 
 def batch(tmp_path_factory):
     root = tmp_path_factory.mktemp("model")
     write_synthetic_samples(ShardStore(root), 4, seed=5)
-    dataset = SamplesDataset(root, pipeline="synthetic", split=None, image_size=96)
+    dataset = SamplesDataset(root, pipeline="synthetic", split=None, image_size=96, instance_masks=True)
     return collate([dataset[0], dataset[1]])
 
 

@@ -391,6 +391,9 @@ class SamplesDataset(Dataset):
         Scale range ``[1 - scale_jitter, 1]`` when augmenting.
     depth_reference : {"table", "median"}
         What the input height is measured from (``DEPTH_REFERENCES``).
+    instance_masks : bool
+        Also give each item's instance mask in the network frame
+        (``sample_targets``), which only the grasp head's object map needs.
 
     Raises
     ------
@@ -409,6 +412,7 @@ class SamplesDataset(Dataset):
         max_samples: int | None = None,
         scale_jitter: float = DEFAULT_SCALE_JITTER,
         depth_reference: str = "table",
+        instance_masks: bool = False,
     ) -> None:
         self.data_dir = data_dir if is_uri(data_dir) else Path(data_dir)
         self.pipeline = pipeline
@@ -418,6 +422,7 @@ class SamplesDataset(Dataset):
         self.seed = seed
         self.scale_jitter = scale_jitter
         self.depth_reference = depth_reference
+        self.instance_masks = instance_masks
         self.epoch = 0
         self.shards = sample_shards(self.data_dir, pipeline)
         #: The categories and tasks the shards were labelled with (``osgd.contract.taxonomy.VOCABULARY``).
@@ -470,10 +475,12 @@ class SamplesDataset(Dataset):
         else:
             augmentation = Augmentation()
         height = normalise_depth(sample.depth, self.depth_reference)
-        images, boxes, rectangles = augment([height, sample.mask], sample.boxes, sample.grasp_rectangles,
-                                            augmentation, base_scale, (cv2.INTER_LINEAR, cv2.INTER_NEAREST))
+        planes = [height, sample.mask] if self.instance_masks else [height]
+        images, boxes, rectangles = augment(planes, sample.boxes, sample.grasp_rectangles, augmentation, base_scale,
+                                            (cv2.INTER_LINEAR, cv2.INTER_NEAREST))
         image = torch.from_numpy(np.ascontiguousarray(images[0]))[None]
-        targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles, images[1]))
+        mask = images[1] if self.instance_masks else None
+        targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles, mask))
         return image, targets, sample.sample_id
 
 

@@ -321,7 +321,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     dataset = SamplesDataset(config.data, pipeline=config.pipeline, split=config.split,
                              image_size=config.image_size, augment=config.augment, seed=config.seed,
                              max_samples=config.max_samples, scale_jitter=config.scale_jitter,
-                             depth_reference=config.depth_reference)
+                             depth_reference=config.depth_reference,
+                             instance_masks=bool(config.model_options.get("grasp_object_map", False)))
     check_vocabulary(current_vocabulary(), dataset.vocabulary, f"the model of this code (--model {config.model})",
                      f"{config.data}/samples")
     if config.val_samples and config.val_samples >= len(dataset):

@@ -22,6 +22,9 @@ import pyarrow.compute as pc
 BODY_COLUMNS = ("model_id", "category", "vertices", "faces", "convex_parts", "decomposition", "mass", "center_of_mass",
                 "inertia", "friction")
 
+#: The columns of ``BODY_COLUMNS`` that :func:`model_rows` turns into arrays; the rest stay Python values.
+ARRAY_COLUMNS = ("vertices", "faces", "convex_parts")
+
 
 def nested_rows(array: pa.Array, width: int, dtype: type) -> list[np.ndarray]:
     """Each row of a ``list<list<number>[width]>`` array as an ``(n, width)`` array.
@@ -89,8 +92,7 @@ def model_rows(table: pa.Table, model_ids: Iterable[str] | None = None) -> dict[
     if model_ids is not None:
         wanted = pa.array(sorted(set(model_ids)), type=pa.string())
         table = table.filter(pc.is_in(table["model_id"], value_set=wanted))
-    scalars = table.select(["model_id", "category", "decomposition", "mass", "center_of_mass", "inertia",
-                            "friction"]).to_pylist()
+    scalars = table.select([column for column in BODY_COLUMNS if column not in ARRAY_COLUMNS]).to_pylist()
     vertices = nested_rows(table["vertices"], 3, np.float64)
     faces = nested_rows(table["faces"], 3, np.int64)
     convex_parts = _convex_parts(table["convex_parts"])
