@@ -18,7 +18,9 @@ With ``--config``, the stage with that pipeline's ``[scenes]`` parameters
 against the reduced hulls dropped as before issue #22's second round
 (a new pybullet client per attempt): the time ratio, the piles'
 statistics and how still the piles are (each simulated again for 1 s)
-side by side.
+side by side. Where the config sets ``maximal_coordinates``, the config
+with multibodies runs as a third arm, so that the option's own effect
+shows.
 
 It then prints where the stage's time goes (cProfile over the first run):
 the share of the attempts that were thrown away, creating the bodies, the
@@ -163,7 +165,9 @@ def compare_config(pool: ModelPool, data_dir: Path | None, seed: int, scenes: in
     (today's :func:`osgd.physics.worker_client` swapped for
     :func:`osgd.physics.physics_client`, as the stage did until then),
     reduced hulls, every other parameter at its default. After: the stage
-    as it is, with the config's parameters.
+    as it is, with the config's parameters. Where the config sets
+    ``maximal_coordinates``, a third run, the config with multibodies,
+    shows that option alone.
     """
     from contextlib import contextmanager  # noqa: PLC0415
 
@@ -176,26 +180,32 @@ def compare_config(pool: ModelPool, data_dir: Path | None, seed: int, scenes: in
 
     configured = load_pipeline(config).params["scenes"]
     assert isinstance(configured, ScenesStageParams)
+    before = ScenesStageParams(max_hull_vertices=max_vertices)
     kept = drop.worker_client
     drop.worker_client = new_client
     try:
-        before = run(pool, ScenesStageParams(max_hull_vertices=max_vertices), seed, scenes)
+        arms = [("before", before, run(pool, before, seed, scenes))]
     finally:
         drop.worker_client = kept
-    after = run(pool, configured, seed, scenes)
+    if configured.maximal_coordinates:
+        multibody = configured.model_copy(update={"maximal_coordinates": False})
+        arms.append(("multibody", multibody, run(pool, multibody, seed, scenes)))
+    arms.append(("after", configured, run(pool, configured, seed, scenes)))
     changed = {name: value for name, value in configured.key_dict().items()
                if name not in ("count", "max_hull_vertices") and value != ScenesStageParams().key_dict().get(name)}
-    print(f"{config}'s [scenes] ({changed}) against reduced hulls of {max_vertices} corners dropped as before:")
-    for label, figures in (("before", before), ("after", after)):
-        print(f"  {label:6s} {figures['seconds_per_scene']:.3f} s per scene per core (median "
+    print(f"{config}'s [scenes] ({changed}) against reduced hulls of {max_vertices} corners dropped as before"
+          + (" (multibody: the config without maximal_coordinates)" if configured.maximal_coordinates else "") + ":")
+    for label, _, figures in arms:
+        print(f"  {label:9s} {figures['seconds_per_scene']:.3f} s per scene per core (median "
               f"{figures['median_seconds']:.3f}), {figures['steps_per_scene']:.0f} steps per accepted scene, "
               f"{figures['attempts']:.2f} attempts, rejections {figures['rejections']}")
-    print(f"  ratio before / after (wall time per scene): "
-          f"{before['seconds_per_scene'] / after['seconds_per_scene']:.2f}")
-    print_pile_figures(data_dir, ("before", before["rows"]), ("after", after["rows"]))
-    for label, rows, params in (("before", before["rows"], ScenesStageParams(max_hull_vertices=max_vertices)),
-                                ("after", after["rows"], configured)):
-        print(f"  {label}: simulated again for 1 s, {rest_quality(pool, rows, params)}")
+    after = arms[-1][2]
+    for label, _, figures in arms[:-1]:
+        print(f"  ratio {label} / after (wall time per scene): "
+              f"{figures['seconds_per_scene'] / after['seconds_per_scene']:.2f}")
+    print_pile_figures(data_dir, *((label, figures["rows"]) for label, _, figures in arms))
+    for label, params, figures in arms:
+        print(f"  {label}: simulated again for 1 s, {rest_quality(pool, figures['rows'], params)}")
 
 
 def rest_quality(pool: ModelPool, rows: list[dict[str, Any]], params: ScenesStageParams) -> str:
@@ -212,7 +222,8 @@ def rest_quality(pool: ModelPool, rows: list[dict[str, Any]], params: ScenesStag
         with physics_client(timestep=params.timestep) as client:
             drop.build_world(client, params)
             bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
-                                         np.asarray(obj["quaternion"]), max_hull_vertices=params.max_hull_vertices)
+                                         np.asarray(obj["quaternion"]), max_hull_vertices=params.max_hull_vertices,
+                                         maximal_coordinates=params.maximal_coordinates)
                       for obj in row["objects"]]
             for _ in range(round(1.0 / params.timestep)):
                 pybullet.stepSimulation(physicsClientId=client)

@@ -149,3 +149,29 @@ def test_a_body_of_reduced_hulls_lies_within_the_body_of_the_stored_parts() -> N
                                  for corner in pybullet.getAABB(reduced.body_id, physicsClientId=client))
     assert np.all(inner_low >= low - 1e-6) and np.all(inner_high <= high + 1e-6)
     assert np.all(inner_high - inner_low > high - low - 0.008)
+
+
+def test_a_body_in_maximal_coordinates_has_the_pose_mass_and_inertia_of_the_multibody() -> None:
+    # pybullet 3.2 sets a rigid body's mass to 0 when changeDynamics gives its inertia alone: the body turned
+    # NaN on its first step.
+    row = fixture_models()[0]
+    quaternion = Rotation.from_euler("xyz", [0.3, -0.5, 1.1]).as_quat()
+    rests = []
+    for maximal in (False, True):
+        with physics_client() as client:
+            pybullet.createMultiBody(0, pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client),
+                                     useMaximalCoordinates=maximal, physicsClientId=client)
+            body = create_object_body(client, row, np.array([0.1, 0.2, 0.3]), quaternion,
+                                      maximal_coordinates=maximal)
+            position, placed = get_mesh_pose(body)
+            np.testing.assert_allclose(position, [0.1, 0.2, 0.3], atol=1e-6)
+            assert abs(abs(np.dot(placed, quaternion)) - 1) < 1e-6
+            mass, _, inertia = pybullet.getDynamicsInfo(body.body_id, -1, physicsClientId=client)[:3]
+            assert mass == pytest.approx(row["mass"])
+            np.testing.assert_allclose(sorted(inertia), sorted(np.linalg.eigvalsh(np.reshape(row["inertia"], (3, 3)))),
+                                       rtol=1e-6)
+            for _ in range(480):
+                pybullet.stepSimulation(physicsClientId=client)
+            rests.append(pybullet.getAABB(body.body_id, physicsClientId=client)[0][2])
+    # Both fell 0.3 m onto the floor and lie on it.
+    assert all(np.isfinite(rests)) and abs(rests[0] - rests[1]) < 0.002 and max(rests) < 0.003

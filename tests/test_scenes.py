@@ -272,6 +272,21 @@ def test_the_hull_option_keeps_old_scene_keys_until_it_is_set() -> None:
     assert not plain & reduced
 
 
+def test_piles_in_maximal_coordinates_settle_the_same_way_twice_under_their_own_keys() -> None:
+    pool = ModelPool(fixture_models())
+    params = ScenesStageParams(max_attempts=3, maximal_coordinates=True)
+    rows = [generate_scene(pool, params, 0, index).row for index in range(3)]
+    assert all(row is not None and row["settled"] for row in rows)
+    assert [generate_scene(pool, params, 0, index).row for index in range(3)] == rows
+    # The option reaches the physics: the same draws settle elsewhere as multibodies.
+    multibody = [generate_scene(pool, params.model_copy(update={"maximal_coordinates": False}), 0, index).row
+                 for index in range(3)]
+    assert [row["objects"] for row in multibody] != [row["objects"] for row in rows]
+    assert "maximal_coordinates" not in ScenesStageParams().key_dict()
+    plain = {shard.key for shard in _plan(ScenesStageParams(count=50))}
+    assert not plain & {shard.key for shard in _plan(ScenesStageParams(count=50, maximal_coordinates=True))}
+
+
 def test_category_weights_steer_the_draw() -> None:
     pool = ModelPool(fixture_models())
     params = ScenesStageParams(category_weights={"hammer": 0.0, "knife": 0.0})

@@ -193,7 +193,8 @@ def build_world(client: int, params: ScenesStageParams) -> list[int]:
     # A body without a visual shape gets one made from its collision shape for pybullet's renderer: for the
     # plane that took 5-18 ms, as long as 60 steps of a pile. A small box instead; physics never sees it.
     look = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=[0.01] * 3, physicsClientId=client)
-    bodies = [pybullet.createMultiBody(0, plane, look, physicsClientId=client)]
+    maximal = params.maximal_coordinates
+    bodies = [pybullet.createMultiBody(0, plane, look, useMaximalCoordinates=maximal, physicsClientId=client)]
     half = params.area_size / 2
     length = params.area_size + 2 * _WALL_THICKNESS
     for axis in (0, 1):
@@ -203,7 +204,8 @@ def build_world(client: int, params: ScenesStageParams) -> list[int]:
         for side in (-1.0, 1.0):
             position = [0.0, 0.0, params.wall_height / 2]
             position[axis] = side * (half + _WALL_THICKNESS / 2)
-            bodies.append(pybullet.createMultiBody(0, shape, basePosition=position, physicsClientId=client))
+            bodies.append(pybullet.createMultiBody(0, shape, basePosition=position, useMaximalCoordinates=maximal,
+                                                   physicsClientId=client))
     for body in bodies:
         pybullet.changeDynamics(body, -1, lateralFriction=lateral, rollingFriction=rolling,
                                 spinningFriction=spinning, physicsClientId=client)
@@ -221,7 +223,8 @@ def _release(client: int, pool: ModelPool, release: Release, objects: list[Objec
     centre_z = max(params.drop_height, top + params.drop_clearance + half_height)
     target = np.array([release.xy[0], release.xy[1], centre_z])
     return create_object_body(client, pool.rows[release.model_index], target - box_centre, release.quaternion,
-                              max_hull_vertices=params.max_hull_vertices)
+                              max_hull_vertices=params.max_hull_vertices,
+                              maximal_coordinates=params.maximal_coordinates)
 
 
 def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesStageParams,
@@ -325,7 +328,8 @@ def _next_body(client: int, pool: ModelPool, releases: Sequence[Release], object
         return _release(client, pool, releases[index], objects, params)
     position, quaternion = initial_poses[index]
     return create_object_body(client, pool.rows[releases[index].model_index], np.asarray(position),
-                              np.asarray(quaternion), max_hull_vertices=params.max_hull_vertices)
+                              np.asarray(quaternion), max_hull_vertices=params.max_hull_vertices,
+                              maximal_coordinates=params.maximal_coordinates)
 
 
 def _runaway(client: int, objects: Sequence[ObjectBody], params: ScenesStageParams, step: int) -> tuple[str, str]:

@@ -251,12 +251,13 @@ class _Scene:
         self.client = client
         self.checks = world.params("checks")
         self.steps = 0
-        statics = build_world(client, world.params("scenes"))
+        scenes = world.params("scenes")
+        statics = build_world(client, scenes)
         self.names = {statics[0]: "floor", **{body: "wall" for body in statics[1:]}}
         self.objects = []
         for index, obj in enumerate(scene["objects"]):
             body = create_object_body(client, world.models[obj["model_id"]], np.asarray(obj["position"]),
-                                      np.asarray(obj["quaternion"]))
+                                      np.asarray(obj["quaternion"]), maximal_coordinates=scenes.maximal_coordinates)
             self.objects.append(body)
             self.names[body.body_id] = f"{obj['category']}#{index}"
         checks = self.checks
