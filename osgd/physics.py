@@ -282,8 +282,7 @@ def create_object_body(
     if body_mass > 0:
         # The mass goes with the inertia: on a body in maximal coordinates, pybullet 3.2 sets the mass to 0 when
         # changeDynamics gives localInertiaDiagonal without it (the body then turns NaN on its first step).
-        mass_argument = {"mass": body_mass} if maximal_coordinates else {}
-        pybullet.changeDynamics(body, -1, localInertiaDiagonal=moments.tolist(), **mass_argument,
+        pybullet.changeDynamics(body, -1, mass=body_mass, localInertiaDiagonal=moments.tolist(),
                                 physicsClientId=client)
     lateral, rolling, spinning = (float(value) for value in model["friction"])
     pybullet.changeDynamics(
