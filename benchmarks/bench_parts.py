@@ -13,11 +13,11 @@ Two references, each reported per category (docs/models.md, "Automatic parts"):
    hand-made contact pairs carry their task (the file they came from: the
    category's task, or hand over). Each model is validated and scaled as the
    models stage does; each pair is labelled with the task its automatic parts
-   give it: the parts of the 24 surface samples nearest to the pair's centre
-   vote, handle parts (``osgd.grasps.labels.DEFAULT_RULES``) for the
-   category's task, working parts for hand over, other parts (a hammer's
-   neck) for no task. Agreement is the share of pairs whose task is the
-   file's.
+   give it: the 24 surface samples nearest to the pair's centre vote, each
+   with the label ``osgd.grasps.labels.label_grasp`` gives a grasp touching
+   its part (as ``holding_parts`` sees it) at the pair's place along the
+   tool (``tool_axis``), clearances left out. Agreement is the share of
+   pairs whose task is the file's.
 
 Pictures of the worst cases go to ``--figures`` (PNG). Run from the
 repository root::
@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,8 +42,8 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
-from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX  # noqa: E402
-from osgd.grasps.labels import DEFAULT_RULES  # noqa: E402
+from osgd.contract.taxonomy import CATEGORIES  # noqa: E402
+from osgd.grasps.labels import DEFAULT_RULES, holding_parts, label_grasp, tool_axis  # noqa: E402
 from osgd.models import osgd_import, procedural  # noqa: E402
 from osgd.models.categories import draw_length  # noqa: E402
 from osgd.models.parts import AutomaticParts, find_parts  # noqa: E402
@@ -116,23 +116,19 @@ def procedural_table(count: int, seed: int) -> tuple[dict, list[Case]]:
 
 
 def pair_tasks(mesh: trimesh.Trimesh, category: str, face_parts: np.ndarray, pairs: list) -> list[str]:
-    """The task the parts near each pair's centre give it (module text)."""
+    """The task the parts near each pair's centre, and its place along the tool, give it (module text)."""
     points, faces = trimesh.sample.sample_surface_even(mesh, 20000, seed=0)
     tree = cKDTree(points)
-    parts = face_parts[faces]
     rule = DEFAULT_RULES[category]
-    handle = {PART_INDEX[p] for p in rule.handle}
-    working = {PART_INDEX[p] for p in rule.working}
+    axis = tool_axis(mesh, face_parts, rule)
+    parts = holding_parts(face_parts[faces], points, axis, rule)
     tasks = []
     for pair in pairs:
-        _, nearest = tree.query((pair.contact_a + pair.contact_b) / 2, k=24)
-        votes = parts[nearest]
-        counts = {
-            CATEGORY_TASK[category]: int(np.isin(votes, list(handle)).sum()),
-            "hand over": int(np.isin(votes, list(working)).sum()),
-        }
-        counts["no task"] = len(votes) - sum(counts.values())
-        tasks.append(max(counts, key=counts.get))
+        centre = (pair.contact_a + pair.contact_b) / 2
+        _, nearest = tree.query(centre, k=24)
+        position = None if axis is None else float(axis.position(centre[None])[0])
+        votes = Counter(label_grasp(category, rule, np.array([part]), {}, position) for part in parts[nearest])
+        tasks.append(max(sorted(votes), key=votes.get))
     return tasks
 
 

@@ -17,7 +17,7 @@ from osgd.contract.schemas import CHECKS, GRASPS, vectors_from_arrow
 from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, TASKS
 from osgd.grasps.antipodal import ContactPairs, spread_order, thin_pairs
 from osgd.grasps.geometry import closing_region
-from osgd.grasps.labels import DEFAULT_RULES, LabelRule, label_grasp
+from osgd.grasps.labels import DEFAULT_RULES, LabelRule, holding_parts, label_grasp, tool_axis
 from osgd.grasps.pictures import show_grasps
 from osgd.grasps.stage import GraspsStage, GraspsStageParams
 from osgd.gripper import PANDA
@@ -105,6 +105,70 @@ def test_label_grasp_applies_the_rule_in_order():
     assert label_grasp("hammer", rule, np.array([], dtype=int), {}) == "no task"
 
 
+def test_the_split_gives_hand_over_beyond_it_and_the_task_behind_it():
+    rule = DEFAULT_RULES["hammer"]
+    handle, head, neck = PART_INDEX["handle"], PART_INDEX["head"], PART_INDEX["neck"]
+    far = {handle: 0.0, head: 0.05}
+    assert label_grasp("hammer", rule, np.array([handle]), far, position=0.3) == "hammer"
+    # The front of the handle, and a part the rule does not name (paper Fig. 1: "head or neck"): hand over.
+    assert label_grasp("hammer", rule, np.array([handle]), far, position=0.6) == "hand over"
+    assert label_grasp("hammer", rule, np.array([neck]), {neck: 0.0, head: 0.0}, position=0.8) == "hand over"
+    assert label_grasp("hammer", rule, np.array([handle, -1]), far, position=0.6) == "no task"
+    # Where the handle meets the head, both held at once: no task, on either side of the split.
+    assert label_grasp("hammer", rule, np.array([handle, head]), {handle: 0.0, head: 0.0}, position=0.8) == "no task"
+    # The working part is hand over wherever it is; the task keeps its clearance behind the split.
+    assert label_grasp("hammer", rule, np.array([head]), {head: 0.0, handle: 0.02}, position=0.4) == "hand over"
+    assert label_grasp("hammer", rule, np.array([handle]), {handle: 0.0, head: 0.02}, position=0.4) == "no task"
+    # Without a split (or without an axis), the parts alone decide.
+    by_parts = rule.model_copy(update={"split": 1.0})
+    assert label_grasp("hammer", by_parts, np.array([handle]), far, position=0.6) == "hammer"
+    assert label_grasp("hammer", rule, np.array([handle]), far, position=None) == "hammer"
+
+
+def _tool(parts: list[tuple[str, trimesh.Trimesh]]) -> tuple[trimesh.Trimesh, np.ndarray]:
+    mesh = trimesh.util.concatenate([part for _, part in parts])
+    face_parts = np.concatenate([np.full(len(part.faces), PART_INDEX[name]) for name, part in parts])
+    return mesh, face_parts
+
+
+def test_the_tool_axis_runs_from_the_handle_end_to_the_working_end_in_any_pose():
+    mesh, face_parts = _tool(hammer_parts())  # x from -0.15 (handle end) to 0.12 (head)
+    points = np.array([[-0.15, 0.0, 0.0], [-0.015, 0.0, 0.0], [0.12, 0.0, 0.0]])
+    axis = tool_axis(mesh, face_parts, DEFAULT_RULES["hammer"])
+    assert axis.length == pytest.approx(0.27, abs=1e-6)
+    np.testing.assert_allclose(axis.position(points), [0.0, 0.5, 1.0], atol=1e-6)
+    rotation = Rotation.from_rotvec([0.4, -1.1, 0.7])
+    shift = np.array([0.2, -0.1, 0.05])
+    turned = mesh.copy()
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = rotation.as_matrix(), shift
+    turned.apply_transform(transform)
+    turned_axis = tool_axis(turned, face_parts, DEFAULT_RULES["hammer"])
+    np.testing.assert_allclose(turned_axis.position(rotation.apply(points) + shift), [0.0, 0.5, 1.0], atol=1e-6)
+    # No working part, no end to tell: the parts alone decide.
+    block, block_faces = _tool(block_parts())
+    assert tool_axis(block, block_faces, DEFAULT_RULES["hammer"]) is None
+
+
+def test_a_ring_end_behind_the_handle_is_held_like_the_handle():
+    """Table I's wrench task keeps only "away from the jaws": the ring end opposite them is the task's."""
+    box = trimesh.creation.box
+    parts = [
+        ("head", box([0.03, 0.03, 0.008], trimesh.transformations.translation_matrix([-0.085, 0, 0]))),
+        ("handle", box([0.14, 0.015, 0.006])),
+        ("jaws", box([0.04, 0.045, 0.008], trimesh.transformations.translation_matrix([0.09, 0, 0]))),
+    ]
+    mesh, face_parts = _tool(parts)
+    rule = DEFAULT_RULES["wrench"]
+    axis = tool_axis(mesh, face_parts, rule)
+    points = mesh.triangles_center
+    held = holding_parts(face_parts, points, axis, rule)
+    np.testing.assert_array_equal(held[face_parts == PART_INDEX["head"]], PART_INDEX["handle"])
+    np.testing.assert_array_equal(held[face_parts != PART_INDEX["head"]], face_parts[face_parts != PART_INDEX["head"]])
+    by_parts = rule.model_copy(update={"split": 1.0})
+    np.testing.assert_array_equal(holding_parts(face_parts, points, axis, by_parts), face_parts)
+
+
 def test_every_category_has_a_rule_naming_disjoint_parts():
     assert set(DEFAULT_RULES) == set(CATEGORIES)
     for rule in DEFAULT_RULES.values():
@@ -113,7 +177,8 @@ def test_every_category_has_a_rule_naming_disjoint_parts():
 
 
 def test_sampled_labels_follow_the_rules(fixture_run):
-    """Every task grasp holds only handle parts, every hand over none of the handle (exact volumes)."""
+    """Task grasps hold only handle parts in the half at the handle end; hand over holds no handle part, or
+    holds the tool in the half at its working end (exact volumes; the fixture tools lie along x, handle at -x)."""
     _store, rows, _report, grasps = fixture_run
     tools = {"hammer": hammer_parts(), "screwdriver": screwdriver_parts()}
     for row in rows:
@@ -125,15 +190,22 @@ def test_sampled_labels_follow_the_rules(fixture_run):
         category_task = CATEGORY_TASK[row["category"]]
         assert {category_task, "hand over"} <= set(tasks), f"{row['name']}: {set(tasks)}"
         parts = part_manifolds(tools[row["category"]])
+        low, high = np.array([mesh.bounds[:, 0] for _, mesh in tools[row["category"]]]).T
+        middle = (low.min() + high.max()) / 2
         positions, rotations = poses(model_grasps)
         widths = model_grasps.column("width").to_numpy()
+        held_by_the_handle = 0
         for task, position, rotation, width in zip(tasks, positions, rotations, widths, strict=True):
             region = box_manifold(np.zeros(3), closing_region(PANDA, width), position, rotation)
             touched = {name for name, part in parts if (region ^ part).volume() > 1e-12}
             if task == category_task:
                 assert touched <= set(rule.handle), f"{row['name']}: a {task!r} grasp touches {touched}"
-            if task == "hand over":
-                assert not touched & set(rule.handle), f"{row['name']}: a hand over grasp touches {touched}"
+                assert position[0] < middle, f"{row['name']}: a {task!r} grasp at x = {position[0]:.3f}"
+            if task == "hand over" and touched & set(rule.handle):
+                assert position[0] >= middle, f"{row['name']}: a hand over grasp on the handle at {position[0]:.3f}"
+                held_by_the_handle += 1
+        # The hammer's handle reaches past its middle: hand over takes the front of it (paper Fig. 1).
+        assert held_by_the_handle > 0 or row["category"] != "hammer"
         # The heavy end: every hammer grasp keeps its pads' region 3 cm from the head.
         if row["category"] == "hammer":
             head = dict(parts)["head"]

@@ -16,6 +16,7 @@ import hashlib
 import json
 import logging
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import pyarrow as pa
@@ -34,7 +35,7 @@ from osgd.grasps.geometry import (
     local_points,
     rotations_to_quaternions,
 )
-from osgd.grasps.labels import LabelRule, label_grasp
+from osgd.grasps.labels import LabelRule, ToolAxis, holding_parts, label_grasp, tool_axis
 from osgd.grasps.params import GraspsStageParams
 from osgd.gripper import Gripper
 
@@ -204,6 +205,16 @@ class GraspAnnotator:
             + max(self.rule.task_clearance, self.rule.hand_over_clearance)
         )
 
+    @cached_property
+    def axis(self) -> ToolAxis | None:
+        """The tool's axis from its handle end to its working end (:func:`osgd.grasps.labels.tool_axis`)."""
+        return tool_axis(self.mesh, self.model.face_parts, self.rule)
+
+    @cached_property
+    def _holding_parts(self) -> np.ndarray:
+        """The surface samples' parts as the label rule sees them (:func:`osgd.grasps.labels.holding_parts`)."""
+        return holding_parts(self.surface.parts, self.surface.points, self.axis, self.rule)
+
     @property
     def where(self) -> str:
         return f"model {self.model.name} ({self.model.model_id})"
@@ -308,7 +319,8 @@ class GraspAnnotator:
     def _labels(self, centre: np.ndarray, rotations: np.ndarray, width: float, nearby: np.ndarray) -> list[str]:
         """Task label of each gripper pose (:func:`osgd.grasps.labels.label_grasp`)."""
         local = np.abs(local_points(self.surface.points[nearby], centre, rotations))
-        parts = self.surface.parts[nearby]
+        parts = self._holding_parts[nearby]
+        position = None if self.axis is None else float(self.axis.position(centre[None])[0])
         grown = closing_region(self.gripper, width, self.params.label_margin)
         exact = closing_region(self.gripper, width)
         touched = np.all(local <= grown, axis=-1)
@@ -318,7 +330,7 @@ class GraspAnnotator:
         labels = []
         for pose in range(len(rotations)):
             part_distances = {int(part): float(distance[pose, parts == part].min()) for part in present}
-            labels.append(label_grasp(self.model.category, self.rule, parts[touched[pose]], part_distances))
+            labels.append(label_grasp(self.model.category, self.rule, parts[touched[pose]], part_distances, position))
         return labels
 
 

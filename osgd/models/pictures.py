@@ -27,7 +27,7 @@ from matplotlib.patches import Patch
 
 from osgd.contract.schemas import mesh_from_arrow
 from osgd.contract.shards import ShardError
-from osgd.contract.taxonomy import PART_INDEX, PARTS
+from osgd.contract.taxonomy import PARTS
 from osgd.models.parts import PrincipalFrame, parts_method, principal_frame
 from osgd.store import ShardStore
 
@@ -155,26 +155,27 @@ def legend_handles(parts: set[int]) -> list[Patch]:
 
 
 def _working_direction(
-    vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray, provenance: dict
-) -> tuple[PrincipalFrame, bool]:
-    """The mesh's principal frame turned so that *t* points to the working end, and whether that end is known.
+    vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray, category: str
+) -> tuple[PrincipalFrame, float | None]:
+    """The mesh's principal frame turned so that *t* points to the working end, and the category's split.
 
-    The automatic parts' recorded axis when there is one, else from the handle faces to the others.
+    The direction is the label rules' own (:func:`osgd.grasps.labels.tool_axis`
+    with the category's default rule); the split is None when the mesh has
+    no axis to tell (no handle or no working part).
     """
-    frame = principal_frame(trimesh.Trimesh(vertices, faces, process=False))
-    axis = (provenance.get("parts") or {}).get("axis")
-    if axis is not None:
-        return (frame if frame.axes[0] @ np.asarray(axis) >= 0 else frame.flipped()), True
-    handle = face_parts == PART_INDEX["handle"]
-    if not handle.any() or handle.all():
-        return frame, False
-    centres = vertices[faces].mean(axis=1)
-    towards = centres[~handle & (face_parts >= 0)].mean(axis=0) - centres[handle].mean(axis=0)
-    return (frame if frame.axes[0] @ towards >= 0 else frame.flipped()), True
+    from osgd.grasps.labels import DEFAULT_RULES, tool_axis  # noqa: PLC0415 (grasps come after models)
+
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    frame = principal_frame(mesh)
+    rule = DEFAULT_RULES.get(category)
+    axis = tool_axis(mesh, face_parts, rule) if rule is not None else None
+    if axis is None:
+        return frame, None
+    return (frame if frame.axes[0] @ axis.direction >= 0 else frame.flipped()), rule.split
 
 
-def draw_axis(axes: plt.Axes, view: View, frame: PrincipalFrame, known: bool) -> None:
-    """The principal axis through the mesh, its length long; an arrow to the working end when known.
+def draw_axis(axes: plt.Axes, view: View, frame: PrincipalFrame, split: float | None) -> None:
+    """The principal axis through the mesh, its length long; an arrow to the working end and the split when known.
 
     Parameters
     ----------
@@ -182,15 +183,29 @@ def draw_axis(axes: plt.Axes, view: View, frame: PrincipalFrame, known: bool) ->
         What :func:`draw_mesh` returned for the mesh.
     frame : PrincipalFrame
         Its *t* axis pointing to the working end.
+    split : float or None
+        Where the label rules' category task gives way to hand over, as a
+        share of the length from the handle end (:class:`osgd.grasps.labels.LabelRule`);
+        None when the ends are not known.
     """
     half = frame.length / 2 * frame.axes[0]
     ends = view.project(np.array([frame.centre - half, frame.centre + half]))
+    known = split is not None
     style = "-|>" if known else "-"
     axes.annotate("", xy=ends[1], xytext=ends[0],
                   arrowprops={"arrowstyle": style, "color": "black", "linewidth": 1.2, "linestyle": "--"})
-    if known:
-        axes.annotate("handle end", ends[0], textcoords="offset points", xytext=(0, -14), ha="center", fontsize=8)
-        axes.annotate("working end", ends[1], textcoords="offset points", xytext=(0, 8), ha="center", fontsize=8)
+    if not known:
+        return
+    axes.annotate("handle end", ends[0], textcoords="offset points", xytext=(0, -14), ha="center", fontsize=8)
+    axes.annotate("working end", ends[1], textcoords="offset points", xytext=(0, 8), ha="center", fontsize=8)
+    if split < 1.0:
+        along = ends[1] - ends[0]
+        across = np.array([-along[1], along[0]]) * 0.05
+        mark = ends[0] + split * along
+        axes.plot(*np.array([mark - across, mark + across]).T, color="black", linewidth=1.5)
+        for side, text in ((-0.08, "task"), (0.08, "hand over")):
+            axes.annotate(text, mark + side * along - across, textcoords="offset points", xytext=(0, -10),
+                          ha="center", fontsize=8)
 
 
 def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
@@ -198,7 +213,9 @@ def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
 
     The title says how the parts were found (procedural, sidecar,
     automatic with its confidence, none); the dashed principal axis runs
-    from the handle end to the working end, so a wrong head shows at a glance.
+    from the handle end to the working end, so a wrong head shows at a glance,
+    and a bar across it marks where the label rules' category task gives way
+    to hand over (docs/grasps.md, ``split``).
 
     Raises
     ------
@@ -212,7 +229,7 @@ def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
     method, confidence = parts_method(row["source"], provenance)
     figure, axes = plt.subplots(figsize=(8, 5), dpi=120)
     view = draw_mesh(axes, vertices, faces, face_parts)
-    draw_axis(axes, view, *_working_direction(vertices, faces, face_parts, provenance))
+    draw_axis(axes, view, *_working_direction(vertices, faces, face_parts, row["category"]))
     found = {
         "procedural": "the generator's parts",
         "sidecar": "parts from the sidecar's regions",
