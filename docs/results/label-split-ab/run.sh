@@ -4,12 +4,14 @@
 # labels before the split: commit 3709887's data/manifests/recipe.json). The piles, images, boxes and grasp
 # rectangles are the same; only the grasps' task labels differ. Side by side, one thread each, 40 minutes of training
 # steps each, seed 0, on a 2-core AMD EPYC (2026-11-26); the protocol of docs/results/table-removal-ab/. Each arm is
-# evaluated on its own labels of the same 206 test samples.
+# evaluated on its own labels of the same 206 test samples. SEED=1 docs/results/label-split-ab/run.sh for the second
+# seed (runs/label-ab/seed1).
 #
 # The "parts" arm needs the samples shards of the labels before the split in the data dir: any data dir that built
 # pipelines/recipe.toml before this change has them (shards are kept by key); otherwise build them from a worktree:
 #     git worktree add /tmp/before 3709887 && (cd /tmp/before && .venv/bin/osgd --data-dir "$PWD/data" run pipelines/recipe.toml)
 set -e
+SEED=${SEED:-0}
 cd "$(dirname "$0")/../../.."
 .venv/bin/osgd --data-dir data --workers 2 run pipelines/recipe.toml
 PARTS_DATA=runs/label-ab/parts-data
@@ -22,12 +24,14 @@ OPTS="--model tog --backbone resnet18 --epochs 50 --image-size 192 --batch-size 
  --option box_batch_per_image=64 --option box_head_size=256 --option grasp_channels=128
  --option rpn_pre_nms_train=500 --option rpn_post_nms_train=250 --option grasp_anchor_size=12.0"
 declare -A DATA=([split]=data [parts]=$PARTS_DATA)
+OUT=runs/label-ab/seed$SEED
+mkdir -p $OUT
 for arm in split parts; do
-    OMP_NUM_THREADS=1 .venv/bin/togcrf train --data ${DATA[$arm]} --pipeline recipe --out runs/label-ab/$arm \
-        $OPTS > runs/label-ab/$arm.log 2>&1 &
+    OMP_NUM_THREADS=1 .venv/bin/togcrf train --data ${DATA[$arm]} --pipeline recipe --out $OUT/$arm --seed $SEED \
+        $OPTS > $OUT/$arm.log 2>&1 &
 done
 wait
 for arm in split parts; do
-    .venv/bin/togcrf eval runs/label-ab/$arm/checkpoint.pt --data ${DATA[$arm]} --pipeline recipe --split test \
-        --device cpu --speed-images 0 --out runs/label-ab/$arm/eval.json
+    .venv/bin/togcrf eval $OUT/$arm/checkpoint.pt --data ${DATA[$arm]} --pipeline recipe --split test \
+        --device cpu --speed-images 0 --out $OUT/$arm/eval.json
 done
