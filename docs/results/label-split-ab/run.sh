@@ -5,7 +5,8 @@
 # rectangles are the same; only the grasps' task labels differ. Side by side, one thread each, 40 minutes of training
 # steps each, seed 0, on a 2-core AMD EPYC (2026-11-26); the protocol of docs/results/table-removal-ab/. Each arm is
 # evaluated on its own labels of the same 206 test samples. SEED=1 docs/results/label-split-ab/run.sh for the second
-# seed (runs/label-ab/seed1).
+# seed (runs/label-ab/seed1). Seed 0 ran before the SEED variable, into runs/label-ab/{split,parts}, as its eval.json
+# commands say; the same training otherwise (togcrf train seeds 0 by default).
 #
 # The "parts" arm needs the samples shards of the labels before the split in the data dir: any data dir that built
 # pipelines/recipe.toml before this change has them (shards are kept by key); otherwise build them from a worktree:
