@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from osgd.physics import create_object_body, get_mesh_pose, physics_client, pybullet_module, reduced_hull
+from osgd.physics import get_mesh_pose, physics_client, pybullet_module, reduced_hull
 from osgd.scenes import drop
 from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene, stored_penetration
 from osgd.scenes.params import ScenesStageParams
@@ -221,9 +221,8 @@ def rest_quality(pool: ModelPool, rows: list[dict[str, Any]], params: ScenesStag
     for row in rows:
         with physics_client(timestep=params.timestep) as client:
             drop.build_world(client, params)
-            bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
-                                         np.asarray(obj["quaternion"]), max_hull_vertices=params.max_hull_vertices,
-                                         maximal_coordinates=params.maximal_coordinates)
+            bodies = [drop.pile_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
+                                     np.asarray(obj["quaternion"]), params)
                       for obj in row["objects"]]
             for _ in range(round(1.0 / params.timestep)):
                 pybullet.stepSimulation(physicsClientId=client)

@@ -75,6 +75,16 @@ class LabelRule(BaseModel):
     )
 
     @property
+    def handle_parts(self) -> frozenset[int]:
+        """``taxonomy.PARTS`` indices of :attr:`handle`."""
+        return frozenset(PART_INDEX[part] for part in self.handle)
+
+    @property
+    def working_parts(self) -> frozenset[int]:
+        """``taxonomy.PARTS`` indices of :attr:`working`."""
+        return frozenset(PART_INDEX[part] for part in self.working)
+
+    @property
     def by_position(self) -> bool:
         """Whether the place along the tool counts (``split`` below 1)."""
         return self.split < 1.0
@@ -168,7 +178,7 @@ def tool_axis(mesh: trimesh.Trimesh, face_parts: np.ndarray, rule: LabelRule) ->
     """
     areas = np.asarray(mesh.area_faces, dtype=np.float64)
     centres = np.asarray(mesh.triangles_center, dtype=np.float64)
-    kinds = [np.isin(face_parts, [PART_INDEX[part] for part in parts]) for parts in (rule.handle, rule.working)]
+    kinds = [np.isin(face_parts, list(parts)) for parts in (rule.handle_parts, rule.working_parts)]
     if not all(areas[kind].sum() > 0 for kind in kinds):
         return None
     handle_centre, working_centre = (np.average(centres[kind], axis=0, weights=areas[kind]) for kind in kinds)
@@ -204,8 +214,8 @@ def holding_parts(parts: np.ndarray, points: np.ndarray, axis: ToolAxis | None, 
     if axis is None or not rule.by_position:
         return parts
     position = axis.position(points)
-    handle = np.isin(parts, [PART_INDEX[part] for part in rule.handle])
-    working = np.isin(parts, [PART_INDEX[part] for part in rule.working])
+    handle = np.isin(parts, list(rule.handle_parts))
+    working = np.isin(parts, list(rule.working_parts))
     if not handle.any():
         return parts
     behind = working & (position < float(np.median(position[handle])))
@@ -246,8 +256,7 @@ def label_grasp(
     touched = {int(part) for part in np.unique(touched_parts)}
     if not touched:
         return "no task"
-    handle = {PART_INDEX[part] for part in rule.handle}
-    working = {PART_INDEX[part] for part in rule.working}
+    handle, working = rule.handle_parts, rule.working_parts
     beyond_split = rule.by_position and position is not None and position >= rule.split
 
     def clear_of(parts: set[int], clearance: float) -> bool:

@@ -212,6 +212,23 @@ def build_world(client: int, params: ScenesStageParams) -> list[int]:
     return bodies
 
 
+def pile_body(client: int, model: dict, position: np.ndarray, quaternion: np.ndarray,
+              params: ScenesStageParams) -> ObjectBody:
+    """One object of a pile as the stage simulates it: the collision hulls and the coordinates ``params`` ask for.
+
+    Parameters
+    ----------
+    model : dict
+        A ``models`` row.
+    position : (3,) float
+        World position of the mesh frame, m.
+    quaternion : (4,) float
+        World orientation of the mesh frame, (x, y, z, w).
+    """
+    return create_object_body(client, model, position, quaternion, max_hull_vertices=params.max_hull_vertices,
+                              maximal_coordinates=params.maximal_coordinates)
+
+
 def _release(client: int, pool: ModelPool, release: Release, objects: list[ObjectBody],
              params: ScenesStageParams) -> ObjectBody:
     pybullet = pybullet_module()
@@ -222,9 +239,7 @@ def _release(client: int, pool: ModelPool, release: Release, objects: list[Objec
     top = max((pybullet.getAABB(body.body_id, physicsClientId=client)[1][2] for body in objects), default=0.0)
     centre_z = max(params.drop_height, top + params.drop_clearance + half_height)
     target = np.array([release.xy[0], release.xy[1], centre_z])
-    return create_object_body(client, pool.rows[release.model_index], target - box_centre, release.quaternion,
-                              max_hull_vertices=params.max_hull_vertices,
-                              maximal_coordinates=params.maximal_coordinates)
+    return pile_body(client, pool.rows[release.model_index], target - box_centre, release.quaternion, params)
 
 
 def simulate_drop(pool: ModelPool, releases: Sequence[Release], params: ScenesStageParams,
@@ -327,9 +342,8 @@ def _next_body(client: int, pool: ModelPool, releases: Sequence[Release], object
     if initial_poses is None:
         return _release(client, pool, releases[index], objects, params)
     position, quaternion = initial_poses[index]
-    return create_object_body(client, pool.rows[releases[index].model_index], np.asarray(position),
-                              np.asarray(quaternion), max_hull_vertices=params.max_hull_vertices,
-                              maximal_coordinates=params.maximal_coordinates)
+    return pile_body(client, pool.rows[releases[index].model_index], np.asarray(position), np.asarray(quaternion),
+                     params)
 
 
 def _runaway(client: int, objects: Sequence[ObjectBody], params: ScenesStageParams, step: int) -> tuple[str, str]:
