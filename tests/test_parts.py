@@ -84,6 +84,51 @@ def test_a_shape_without_the_parts_is_left_unknown_with_a_reason():
     assert "hammer" in found.note and "no head wider than the handle" in found.note and "[[parts]]" in found.note
 
 
+def _along_x(*pieces: tuple[str, float, float, float]) -> trimesh.Trimesh:
+    """Round pieces along x, each (kind, start, end, radius), m: a "cylinder", or a "cone" from ``radius`` at
+    ``start`` to a point at ``end``."""
+    meshes = []
+    for kind, start, end, radius in pieces:
+        if kind == "cylinder":
+            piece = trimesh.creation.cylinder(radius=radius, height=end - start, sections=24)
+            piece.apply_translation([0.0, 0.0, (end - start) / 2])
+        else:
+            piece = trimesh.creation.cone(radius=radius, height=end - start, sections=24)
+        piece.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0.0, 1.0, 0.0]))
+        piece.apply_translation([start, 0.0, 0.0])
+        meshes.append(piece)
+    return trimesh.util.concatenate(meshes)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_pen_tip_is_the_cone_not_a_narrow_plug_at_the_back(seed):
+    """pen_003 of the authors' models: a narrow plug at the back is narrower than the tip over the last 8 %."""
+    pen = _along_x(("cylinder", 0.0, 0.015, 0.002), ("cylinder", 0.014, 0.132, 0.005), ("cone", 0.132, 0.142, 0.005))
+    mesh = _tilted(pen, seed)
+    found = find_parts(mesh, "pen")
+    assert found.found, found.note
+    tip_faces = found.face_parts == PART_INDEX["tip"]
+    tip_end = mesh.triangles_center[pen.triangles_center[:, 0].argmax()]
+    assert np.linalg.norm(mesh.triangles_center[tip_faces].mean(axis=0) - tip_end) < 0.01
+    assert (tip_end - mesh.triangles_center.mean(axis=0)) @ found.axis > 0
+
+
+def test_a_capped_pen_has_its_tip_under_the_cap():
+    """pen_005 of the authors' models: neither end tapers; the writing tip lies under the wider cap."""
+    pen = _along_x(("cylinder", 0.0, 0.085, 0.004), ("cylinder", 0.08, 0.14, 0.0055))
+    found = find_parts(pen, "pen")
+    assert found.found, found.note
+    centres = pen.triangles_center[:, 0]
+    assert centres[found.face_parts == PART_INDEX["tip"]].min() > 0.075
+    assert centres[found.face_parts == PART_INDEX["handle"]].max() < 0.085
+    assert found.axis[0] > 0.99
+
+
+def test_a_pen_with_no_tip_and_no_cap_is_left_unknown():
+    found = find_parts(_along_x(("cylinder", 0.0, 0.14, 0.005)), "pen")
+    assert not found.found and "neither end tapers" in found.note
+
+
 def test_true_length_of_a_diagonal_mesh():
     """A stick lying diagonally: its axis-aligned extent is short of its length (a scale from it oversizes it)."""
     turn = trimesh.transformations.euler_matrix(0.0, np.radians(20.0), np.radians(40.0))

@@ -52,7 +52,7 @@ COLUMNS: Final[int] = 400
 #: Below this confidence the parts count as not found (no labels, a note).
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
-VERSION: Final[int] = 1
+VERSION: Final[int] = 2
 
 
 # -- the principal frame ---------------------------------------------------------------------------
@@ -541,18 +541,51 @@ def _hammer(profiles: Profiles) -> Segmentation:
     return Segmentation(columns, confidence, f"no head wider than the handle (ratio {ratio:.2f})", profiles)
 
 
+#: A pen's end tapers when its section grows in at least this share of the columns from the end to where it
+#: reaches 90 % of the body's: a cone grows steadily; a narrow plug at the back or a blunt end does not. On the
+#: authors' seven pens the tips grow in 25-100 % of those columns, the backs in 0-20 %; where both ends count,
+#: the longer stretch is the tip (docs/models.md).
+PEN_STEADY_GROWTH: Final[float] = 0.2
+
+
+def _pen_size(profiles: Profiles) -> np.ndarray:
+    return np.minimum(profiles.width, profiles.thickness)
+
+
+def _taper_length(size: np.ndarray, body: float) -> int:
+    """Columns from column 0 to where ``size`` reaches 90 % of ``body``, if it grows steadily there; else 0.
+
+    Only the first quarter of the columns is searched (a tip is at most a quarter of a pen).
+    """
+    quarter = max(len(size) // 4, 1)
+    reached = np.flatnonzero(size[:quarter] >= 0.9 * body)
+    stop = int(reached[0]) if len(reached) else quarter
+    growing = int(np.count_nonzero(np.diff(size[: stop + 1]) > 0))
+    return stop if growing >= PEN_STEADY_GROWTH * stop else 0
+
+
 def _pen(profiles: Profiles) -> Segmentation:
-    """handle | tip: the tip is the end that narrows over the longer stretch."""
+    """handle | tip: the tip is the end that tapers to a cone over the longer stretch.
 
-    def size(p: Profiles) -> np.ndarray:
-        return np.minimum(p.width, p.thickness)
-
-    profiles, contrast = _orient(profiles, lambda p, w: 1.0 / max(_median(size(p), w), 1e-9), 0.08)
-    body = _median(size(profiles), profiles.at(0.2, 0.8))
-    tip = _run_back(size(profiles) < 0.9 * body)
-    columns = _columns(profiles.columns, ("handle", 0), ("tip", tip))
-    confidence = _ramp(contrast, 1.1, 1.4) if profiles.columns - tip >= 0.03 * profiles.columns else 0.0
-    return Segmentation(columns, confidence, f"neither end tapers to a tip (ratio {contrast:.2f})", profiles)
+    With neither end tapering (a capped pen: the writing tip lies under the cap), the tip is the end under
+    the wider cap, and the cap is the tip part.
+    """
+    size = _pen_size(profiles)
+    body = _median(size, profiles.at(0.2, 0.8))
+    low_end, high_end = _taper_length(size, body), _taper_length(size[::-1], body)
+    if max(low_end, high_end) >= 0.03 * profiles.columns:
+        profiles = profiles if high_end >= low_end else profiles.reversed()
+        tip = _run_back(_pen_size(profiles) < 0.9 * body)
+        confidence = _ramp((max(low_end, high_end) + 1) / (min(low_end, high_end) + 1), 1.2, 1.8)
+        reason = f"both ends taper alike ({low_end} and {high_end} columns)"
+        return Segmentation(_columns(profiles.columns, ("handle", 0), ("tip", tip)), confidence, reason, profiles)
+    profiles, contrast = _orient(profiles, lambda p, w: _median(_pen_size(p), w), 0.08)
+    size = _pen_size(profiles)
+    # The cap's rounded rim may be narrower than the back end for a few columns.
+    cap = _run_back(size >= 1.1 * _median(size, profiles.at(0.0, 0.08)), allowed_gap=round(0.02 * profiles.columns))
+    confidence = _ramp(contrast, 1.15, 1.4) if cap < profiles.columns else 0.0
+    reason = f"neither end tapers to a tip nor has a cap wider than the other end (ratio {contrast:.2f})"
+    return Segmentation(_columns(profiles.columns, ("handle", 0), ("tip", cap)), confidence, reason, profiles)
 
 
 def _bristles(profiles: Profiles, head: int, neck: slice) -> tuple[tuple[int, float, float], float]:
