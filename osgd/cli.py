@@ -364,16 +364,20 @@ def _call_with_store(function: Callable[..., Any], **kwargs: Any) -> None:
     try:
         result = function(store=store, **kwargs)
     except (KeyError, ValueError, FileNotFoundError) as error:
-        _fail(str(error))
+        # str() of a KeyError is the repr of its message, quotes included
+        _fail(str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error))
     if result is not None:
         _say(str(result))
 
 
 OutOption = Annotated[Path, typer.Option("--out", "-o", help="PNG file to write.")]
+ModelArgument = Annotated[
+    str, typer.Argument(help="A model's id, or its name as notes and summaries show it (osgd/hammer_001, user/drill).")
+]
 
 
 @show_app.command("model")
-def show_model(model_id: str, out: OutOption) -> None:
+def show_model(model_id: ModelArgument, out: OutOption) -> None:
     """A model's mesh coloured by part, with its principal axis and how its parts were found."""
     from osgd.models.pictures import show_model as draw  # noqa: PLC0415 (keeps --help fast)
 
@@ -390,7 +394,7 @@ def show_models(out: OutOption) -> None:
 
 @show_app.command("grasps")
 def show_grasps(
-    model_id: str,
+    model_id: ModelArgument,
     out: OutOption,
     color_by: Annotated[str, typer.Option(help="task, or stability (needs the checks table).")] = "task",
 ) -> None:

@@ -469,8 +469,12 @@ def test_pictures_are_written(tmp_path):
     show_model(store, model_id, tmp_path / "one.png")
     show_models(store, tmp_path / "all.png")
     assert (tmp_path / "one.png").stat().st_size > 5000 and (tmp_path / "all.png").stat().st_size > 5000
-    with pytest.raises(KeyError, match="no model"):
+    name = store.read("models", shards[0].key)["name"][0].as_py()
+    show_model(store, name, tmp_path / "by-name.png")  # the item name the notes and summaries show
+    assert (tmp_path / "by-name.png").read_bytes() == (tmp_path / "one.png").read_bytes()
+    with pytest.raises(KeyError, match="no model") as missing:
         show_model(store, "0" * 16, tmp_path / "none.png")
+    assert name in str(missing.value)  # the error lists models that are there
 
 
 # -- caches that cannot lie, errors a person can act on (issue #14) --------------------------

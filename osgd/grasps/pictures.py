@@ -22,6 +22,7 @@ import pyarrow.compute as pc
 from osgd.contract.schemas import mesh_from_arrow, vectors_from_arrow
 from osgd.contract.taxonomy import PARTS, TASK_COLOURS, TASKS
 from osgd.gripper import PANDA, Gripper
+from osgd.models.rows import find_model
 from osgd.store import ShardStore
 
 #: A matplotlib colour: a name or hex string, or (r, g, b) floats in [0, 1].
@@ -41,20 +42,6 @@ PART_COLORS: dict[int, str] = {
 }
 
 STABILITY_COLORS = {"stable": "#1a9850", "unstable": "#d73027", "not checked": "#9e9e9e"}
-
-
-def _find_model(store: ShardStore, model_id: str) -> pa.Table:
-    """The models row whose ``model_id`` or ``name`` is ``model_id`` (one-row table)."""
-    for key in store.keys_on_disk("models"):
-        index = store.read("models", key, columns=["model_id", "name"])
-        matches = [
-            row for row, (identity, name) in enumerate(
-                zip(index.column("model_id").to_pylist(), index.column("name").to_pylist(), strict=True))
-            if model_id in (identity, name)
-        ]
-        if matches:
-            return store.read("models", key).slice(matches[0], 1)
-    raise KeyError(f"no model with id or name {model_id!r} in {store.root / 'models'}")
 
 
 def _model_grasps(store: ShardStore, model_id: str) -> pa.Table:
@@ -269,7 +256,7 @@ def show_grasps(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    model = _find_model(store, model_id)
+    model = find_model(store, model_id)
     identity = model.column("model_id")[0].as_py()
     name = model.column("name")[0].as_py()
     category = model.column("category")[0].as_py()

@@ -29,6 +29,7 @@ from osgd.contract.schemas import mesh_from_arrow
 from osgd.contract.shards import ShardError
 from osgd.contract.taxonomy import PARTS
 from osgd.models.parts import PrincipalFrame, parts_method, principal_frame
+from osgd.models.rows import find_model
 from osgd.store import ShardStore
 
 #: Colour of each part (index into PARTS), then of unknown parts.
@@ -58,21 +59,6 @@ def _model_tables(store: ShardStore, columns: list[str] | None = None) -> Iterat
             continue
         if table.num_rows:
             yield table
-
-
-def _find_model(store: ShardStore, model_id: str) -> dict:
-    for table in _model_tables(store, ["model_id"]):
-        ids = table["model_id"].to_pylist()
-        if model_id in ids:
-            break
-    else:
-        raise KeyError(f"no model {model_id!r} in {store.root / 'models'}")
-    for key in store.keys_on_disk("models"):
-        table = store.read("models", key)
-        rows = table.filter(pa.compute.equal(table["model_id"], model_id))
-        if rows.num_rows:
-            return rows.slice(0, 1).to_pylist()[0]
-    raise KeyError(f"no model {model_id!r} in {store.root / 'models'}")
 
 
 def _view_rotation(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -220,9 +206,10 @@ def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
     Raises
     ------
     KeyError
-        If no verified shard of the data dir holds ``model_id``.
+        If no verified shard of the data dir holds ``model_id`` (a model id, or a name such as
+        ``user/drill``).
     """
-    row = _find_model(store, model_id)
+    row = find_model(store, model_id).to_pylist()[0]
     vertices, faces = mesh_from_arrow(row["vertices"], row["faces"])
     face_parts = np.asarray(row["face_parts"], dtype=np.int64)
     provenance = json.loads(row["provenance"])

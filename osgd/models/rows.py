@@ -17,6 +17,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from osgd.contract.shards import ShardError
+from osgd.store import ShardStore
+
 #: The ``models`` columns a physics body or a rendering needs (``osgd.physics.create_object_body``,
 #: ``osgd.samples.renderer.RenderObject``).
 BODY_COLUMNS = ("model_id", "category", "vertices", "faces", "convex_parts", "decomposition", "mass", "center_of_mass",
@@ -101,3 +104,34 @@ def model_rows(table: pa.Table, model_ids: Iterable[str] | None = None) -> dict[
         row.update(vertices=vertices[index], faces=faces[index], convex_parts=convex_parts[index])
         rows[row["model_id"]] = row
     return rows
+
+
+def find_model(store: ShardStore, model: str) -> pa.Table:
+    """The ``models`` row whose ``model_id`` or ``name`` (``osgd/hammer_001``, ``user/drill``) is ``model``.
+
+    Shards that fail their checks are passed over.
+
+    Returns
+    -------
+    pa.Table
+        One row, every column.
+
+    Raises
+    ------
+    KeyError
+        No verified shard holds it; the message names a few of the models there.
+    """
+    names: list[str] = []
+    for key in store.keys_on_disk("models"):
+        try:
+            index = store.read("models", key, columns=["model_id", "name"])
+        except ShardError:
+            continue
+        rows = zip(index.column("model_id").to_pylist(), index.column("name").to_pylist(), strict=True)
+        for row, identity_and_name in enumerate(rows):
+            if model in identity_and_name:
+                return store.read("models", key).slice(row, 1)
+        names += index.column("name").to_pylist()
+    listed = ", ".join(sorted(names)[:5]) + (", ..." if len(names) > 5 else "")
+    there = f" (models there: {listed})" if names else ""
+    raise KeyError(f"no model with id or name {model!r} in {store.root / 'models'}{there}")
