@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,16 +19,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-import pyarrow as pa
 import trimesh
 from matplotlib.collections import PolyCollection
 from matplotlib.patches import Patch
 
 from osgd.contract.schemas import mesh_from_arrow
-from osgd.contract.shards import ShardError
 from osgd.contract.taxonomy import PARTS
 from osgd.models.parts import PrincipalFrame, parts_method, principal_frame
-from osgd.models.rows import find_model
+from osgd.models.rows import find_model, model_tables
 from osgd.store import ShardStore
 
 #: Colour of each part (index into PARTS), then of unknown parts.
@@ -48,17 +45,6 @@ PART_COLOURS = np.array(
     ]
 )
 UNKNOWN_COLOUR = np.array([0.6, 0.6, 0.6])
-
-
-def _model_tables(store: ShardStore, columns: list[str] | None = None) -> Iterator[pa.Table]:
-    """Every verified, non-empty shard of the models table."""
-    for key in store.keys_on_disk("models"):
-        try:
-            table = store.read("models", key, columns=columns)
-        except ShardError:
-            continue
-        if table.num_rows:
-            yield table
 
 
 def _view_rotation(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -244,7 +230,7 @@ def show_models(store: ShardStore, out: str | Path) -> str:
         If the data dir holds no model.
     """
     columns = ["model_id", "name", "category", "source", "length", "vertices", "faces", "face_parts"]
-    rows = [row for table in _model_tables(store, columns) for row in table.to_pylist()]
+    rows = [row for _, table in model_tables(store, columns) for row in table.to_pylist()]
     if not rows:
         raise FileNotFoundError(f"no models in {store.root / 'models'}; run `osgd annotate` first")
     rows.sort(key=lambda row: (row["category"], row["source"], row["name"]))

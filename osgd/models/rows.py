@@ -10,7 +10,7 @@ buffers, and leaves out the columns those stages never read.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -106,10 +106,20 @@ def model_rows(table: pa.Table, model_ids: Iterable[str] | None = None) -> dict[
     return rows
 
 
+def model_tables(store: ShardStore, columns: list[str] | None = None) -> Iterator[tuple[str, pa.Table]]:
+    """(key, table) of every verified, non-empty shard of the ``models`` table; shards failing their checks
+    are passed over."""
+    for key in store.keys_on_disk("models"):
+        try:
+            table = store.read("models", key, columns=columns)
+        except ShardError:
+            continue
+        if table.num_rows:
+            yield key, table
+
+
 def find_model(store: ShardStore, model: str) -> pa.Table:
     """The ``models`` row whose ``model_id`` or ``name`` (``osgd/hammer_001``, ``user/drill``) is ``model``.
-
-    Shards that fail their checks are passed over.
 
     Returns
     -------
@@ -122,11 +132,7 @@ def find_model(store: ShardStore, model: str) -> pa.Table:
         No verified shard holds it; the message names a few of the models there.
     """
     names: list[str] = []
-    for key in store.keys_on_disk("models"):
-        try:
-            index = store.read("models", key, columns=["model_id", "name"])
-        except ShardError:
-            continue
+    for key, index in model_tables(store, ["model_id", "name"]):
         rows = zip(index.column("model_id").to_pylist(), index.column("name").to_pylist(), strict=True)
         for row, identity_and_name in enumerate(rows):
             if model in identity_and_name:
