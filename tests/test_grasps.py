@@ -169,6 +169,25 @@ def test_a_ring_end_behind_the_handle_is_held_like_the_handle():
     np.testing.assert_array_equal(holding_parts(face_parts, points, axis, by_parts), face_parts)
 
 
+def test_the_axis_points_to_the_jaws_however_large_the_ring_end():
+    """The paper authors' wrench_003: a ring end with more area than the open jaws is still the handle's side."""
+    box = trimesh.creation.box
+    parts = [
+        ("head", box([0.06, 0.06, 0.01], trimesh.transformations.translation_matrix([-0.1, 0, 0]))),
+        ("handle", box([0.14, 0.015, 0.006])),
+        ("jaws", box([0.02, 0.03, 0.008], trimesh.transformations.translation_matrix([0.08, 0, 0]))),
+    ]
+    mesh, face_parts = _tool(parts)
+    areas = mesh.area_faces
+    assert areas[face_parts == PART_INDEX["head"]].sum() > 3 * areas[face_parts == PART_INDEX["jaws"]].sum()
+    axis = tool_axis(mesh, face_parts, DEFAULT_RULES["wrench"])
+    assert axis.direction @ [1.0, 0.0, 0.0] == pytest.approx(1.0)
+    # a wrench with a ring end alone: the ring is its working end
+    ring_only = [part for part in parts if part[0] != "jaws"]
+    ring_mesh, ring_faces = _tool(ring_only)
+    assert tool_axis(ring_mesh, ring_faces, DEFAULT_RULES["wrench"]).direction @ [1.0, 0.0, 0.0] == pytest.approx(-1.0)
+
+
 def test_every_category_has_a_rule_naming_disjoint_parts():
     assert set(DEFAULT_RULES) == set(CATEGORIES)
     for rule in DEFAULT_RULES.values():

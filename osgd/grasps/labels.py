@@ -159,7 +159,7 @@ class ToolAxis:
 
 
 def tool_axis(mesh: trimesh.Trimesh, face_parts: np.ndarray, rule: LabelRule) -> ToolAxis | None:
-    """The tool's axis: the longest side of its oriented box, pointing from its handle parts to its working parts.
+    """The tool's axis: the longest side of its oriented box, pointing from its handle parts to its working part.
 
     Parameters
     ----------
@@ -174,14 +174,21 @@ def tool_axis(mesh: trimesh.Trimesh, face_parts: np.ndarray, rule: LabelRule) ->
     -------
     ToolAxis or None
         None when the mesh has no handle part or no working part, or their
-        area centres do not differ along the axis (no end to tell).
+        area centres do not differ along the axis (no end to tell). The
+        working end is that of the first of ``rule.working`` the mesh has.
     """
     areas = np.asarray(mesh.area_faces, dtype=np.float64)
     centres = np.asarray(mesh.triangles_center, dtype=np.float64)
-    kinds = [np.isin(face_parts, list(parts)) for parts in (rule.handle_parts, rule.working_parts)]
-    if not all(areas[kind].sum() > 0 for kind in kinds):
+    handle = np.isin(face_parts, list(rule.handle_parts))
+    # the working end is that of the rule's first working part the tool has: a wrench's open jaws, however
+    # large its ring end (the paper authors' wrench_003, whose ring outweighs its jaws)
+    working = next((kind for kind in (face_parts == PART_INDEX[part] for part in rule.working)
+                    if areas[kind].sum() > 0), None)
+    if working is None or areas[handle].sum() <= 0:
         return None
-    handle_centre, working_centre = (np.average(centres[kind], axis=0, weights=areas[kind]) for kind in kinds)
+    handle_centre, working_centre = (
+        np.average(centres[kind], axis=0, weights=areas[kind]) for kind in (handle, working)
+    )
     along = principal_frame(mesh).axes[0]
     towards_work = float((working_centre - handle_centre) @ along)
     if abs(towards_work) < 1e-9:

@@ -40,8 +40,8 @@ class GraspsStage(Stage):
 
     name = "grasps"
     table = "grasps"
-    # Bump whenever the grasps of the same models change.
-    version = 2
+    # Bump whenever the grasps of the same models change (3: the tool axis points to the first working part, issue #16).
+    version = 3
     inputs = ("models",)
     Params = GraspsStageParams
     description = "6-DoF parallel-jaw grasps with task labels."
