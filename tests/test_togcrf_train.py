@@ -363,7 +363,8 @@ def test_time_budget_ends_the_run_and_resume_does_not_continue_it(data_dir, tmp_
 def test_training_options_are_checked(data_dir, tmp_path):
     for change, message in (({"optimizer": "adam"}, "--optimizer"), ({"lr_schedule": "linear"}, "--lr-schedule"),
                             ({"scale_jitter": 1.5}, "--scale-jitter"), ({"val_samples": 12}, "--val-samples"),
-                            ({"depth_reference": "floor"}, "--depth-reference")):
+                            ({"depth_reference": "floor"}, "--depth-reference"),
+                            ({"time_budget_minutes": 0.0}, "time budget 0.0 minutes")):
         with pytest.raises(ValueError, match=message):
             train(quick_config(data_dir, tmp_path / "run", max_samples=12, **change))
 
@@ -371,10 +372,10 @@ def test_training_options_are_checked(data_dir, tmp_path):
 def test_cli_prints_progress_lines_off_a_terminal(data_dir, tmp_path):
     arguments = ["train", "--data", str(data_dir), "--pipeline", "synthetic", "--out", str(tmp_path / "run"),
                  "--model", "tog", "--backbone", "resnet18", "--epochs", "1", "--batch-size", "2",
-                 "--max-samples", "4", "--image-size", "64", "--device", "cpu"]
+                 "--max-samples", "4", "--image-size", "64", "--device", "cpu", "--time-budget", "0"]
     arguments += [item for name, value in SMALL.items() for item in ("--option", f"{name}={value}")]
     result = CliRunner().invoke(app, arguments)
-    assert result.exit_code == 0, result.output
+    assert result.exit_code == 0, result.output  # --time-budget 0: no budget, as in togcrf reproduce
     # CliRunner's stdout is not a terminal: a line per step interval (here the last step) and per epoch
     assert "epoch 1/1 step 2/2: loss" in result.output and "images/s" in result.output
     assert "run left" in result.output

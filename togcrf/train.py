@@ -191,6 +191,8 @@ class TrainConfig:
             raise ValueError(f"--depth-reference {self.depth_reference!r}: expected one of {DEPTH_REFERENCES}")
         if self.val_samples < 0:
             raise ValueError(f"--val-samples {self.val_samples}: expected 0 or more")
+        if self.time_budget_minutes is not None and not self.time_budget_minutes > 0:
+            raise ValueError(f"time budget {self.time_budget_minutes} minutes: expected more than 0, or none")
 
 
 @dataclass(frozen=True)
@@ -708,7 +710,8 @@ def register(app: typer.Typer) -> None:
             help="Training samples held out for validation metrics after every epoch (0: none).")] = (
             _DEFAULTS.val_samples),
         time_budget: Annotated[float | None, typer.Option(
-            help="Minutes of training after which the run stops (its checkpoint then holds the part epoch).")] = (
+            help="Minutes of training after which the run stops (its checkpoint then holds the part epoch); "
+            "0: none, the epochs alone end the run.")] = (
             _DEFAULTS.time_budget_minutes),
         resume: Annotated[bool, typer.Option(help="Continue RUN_DIR/checkpoint.pt.")] = _DEFAULTS.resume,
         init: Annotated[Path | None, typer.Option(
@@ -740,8 +743,9 @@ def register(app: typer.Typer) -> None:
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
             depth_reference=depth_reference,
-            time_budget_minutes=time_budget, init=None if init is None else str(init), split=split)
-        report = ProgressReport(out, epochs, time_budget) if distributed.from_environment().main else None
+            time_budget_minutes=time_budget or None, init=None if init is None else str(init), split=split)
+        main = distributed.from_environment().main
+        report = ProgressReport(out, epochs, config.time_budget_minutes) if main else None
         try:
             result = train(config, report)
         except (ValueError, FileNotFoundError, FloatingPointError) as error:
@@ -750,7 +754,7 @@ def register(app: typer.Typer) -> None:
         finally:
             if report is not None:
                 report.close()
-        if not distributed.from_environment().main:
+        if not main:
             return
         if not result:
             typer.echo(f"{out}: already trained {epochs} epochs")

@@ -32,11 +32,7 @@ collect() {
 trap collect EXIT
 say() { echo "object-map A/B [$(date +%H:%M:%S), $((SECONDS - started)) s]: $*" | tee -a "$RESULTS/ab.log"; }
 
-if [ -f "$SITE" ] && ! python3 -c "import pybullet, trimesh, coacd, embreex, pydantic" 2>/dev/null; then
-    mkdir -p /tmp/osgd-site && tar -xJf "$SITE" -C /tmp/osgd-site
-    export PYTHONPATH=/tmp/osgd-site:/tmp/osgd-site/_extra
-fi
-export PYTHONPATH=$PWD:${PYTHONPATH:-}
+source pipelines/gpu-kit.sh "$SITE"
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee -a "$RESULTS/ab.log" || true
 
 say "building pipelines/recipe.toml with $WORKERS workers"

@@ -40,11 +40,7 @@ collect() {
 trap collect EXIT
 say() { echo "ablation [$(date +%H:%M:%S), $((SECONDS - started)) s]: $*" | tee -a "$RESULTS/ablation.log"; }
 
-if [ -f "$SITE" ] && ! python3 -c "import pybullet, trimesh, coacd, embreex, pydantic" 2>/dev/null; then
-    mkdir -p /tmp/osgd-site && tar -xJf "$SITE" -C /tmp/osgd-site
-    export PYTHONPATH=/tmp/osgd-site:/tmp/osgd-site/_extra
-fi
-export PYTHONPATH=$PWD:${PYTHONPATH:-}
+source pipelines/gpu-kit.sh "$SITE"
 
 say "building pipelines/recipe.toml with $WORKERS workers"
 python3 -m osgd --data-dir "$DATA" --workers "$WORKERS" run pipelines/recipe.toml > "$RESULTS/dataset.txt" 2>&1
