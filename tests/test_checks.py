@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from osgd.checks.params import ChecksStageParams
 from osgd.checks.stage import ChecksStage, trial_seed
-from osgd.checks.summary import acceptance_counts
+from osgd.checks.summary import acceptance_counts, format_acceptance
 from osgd.checks.trial import run_trial
 from osgd.contract.schemas import GRASPS, MODELS
 from osgd.gripper import PANDA
@@ -224,6 +224,7 @@ def planned_upstream(store: ShardStore, models: dict[str, dict]) -> dict[str, li
 
 
 def test_stage_checks_every_grasp_resumes_and_summarises(tmp_path, models) -> None:
+    models = {**models, "block": {**models["block"], "source": "user"}}  # a user's mesh, for the summary's note
     store = ShardStore(tmp_path)
     upstream = planned_upstream(store, models)
     stage = ChecksStage()
@@ -254,9 +255,14 @@ def test_stage_checks_every_grasp_resumes_and_summarises(tmp_path, models) -> No
     assert counts.rate(task="hand over") == (1, 2)
     assert counts.rate(category="hammer", task="hammer") == (1, 1)
     assert counts.fail_reasons == {"empty_close": 1, "approach_collision": 1}
+    assert (counts.user_trials, counts.user_approach_collisions) == (3, 1)  # the block's trials
     text = stage.summary(store, again.records)
     assert "4 of 6 grasps stable" in text  # block 1 of 3, hammer 2 of 2, screwdriver 1 of 1
     assert "hand over" in text and "knife" in text
+    # the approach swept against a user's hulls: the summary says how to sweep it against the mesh
+    assert PARAMS.approach_geometry == "hulls"
+    assert "the 3 trials on users' meshes was swept against their convex parts (1 failed it)" in text
+    assert 'checks.approach_geometry = "mesh"' not in format_acceptance(counts, "mesh")
 
 
 def test_plan_leaves_out_a_models_shard_without_grasps(tmp_path, models) -> None:

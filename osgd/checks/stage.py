@@ -60,6 +60,7 @@ class ChecksStage(Stage):
         # item id -> (models key, grasps key) of the last plan, so that
         # summary() can find the shards its records were built from.
         self._planned_inputs: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {}
+        self._approach_geometry = "hulls"
 
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
@@ -72,6 +73,7 @@ class ChecksStage(Stage):
         left out of the plan) gets no item.
         """
         assert isinstance(params, ChecksStageParams)
+        self._approach_geometry = params.approach_geometry
         grasps_by_item = {shard.item.item_id: shard.key for shard in upstream.get("grasps", ())}
         payload = {"params": params.key_dict(), "seed": int(seed), "gripper": dataclasses.asdict(PANDA)}
         items = []
@@ -123,4 +125,4 @@ class ChecksStage(Stage):
     def summary(self, store: ShardStore, records: list[ShardRecord]) -> str:
         """Acceptance rate per category and per task, as text tables."""
         grasps_keys = {item_id: inputs[1] for item_id, inputs in self._planned_inputs.items()}
-        return format_acceptance(acceptance_counts(store, records, grasps_keys))
+        return format_acceptance(acceptance_counts(store, records, grasps_keys), self._approach_geometry)
