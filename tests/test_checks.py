@@ -97,6 +97,7 @@ def test_pre_grasp_opening_narrower_than_the_object_collides_on_approach(models)
 # -- the approach on the hulls and on the mesh ---------------------------------------
 
 MESH_APPROACH = ChecksStageParams(approach_geometry="mesh")
+HULLS = ChecksStageParams(approach_geometry="hulls")
 
 
 def prongs_row(filled: bool) -> dict:
@@ -228,7 +229,7 @@ def test_stage_checks_every_grasp_resumes_and_summarises(tmp_path, models) -> No
     store = ShardStore(tmp_path)
     upstream = planned_upstream(store, models)
     stage = ChecksStage()
-    shards = stage.planned(PARAMS, 7, upstream)
+    shards = stage.planned(HULLS, 7, upstream)
     assert [shard.item.item_id for shard in shards] == ["block", "hammer", "screwdriver", "rejected"]
     for shard, models_shard, grasps_shard in zip(shards, upstream["models"], upstream["grasps"], strict=True):
         assert shard.item.inputs == {"models": (models_shard.key,), "grasps": (grasps_shard.key,)}
@@ -260,9 +261,9 @@ def test_stage_checks_every_grasp_resumes_and_summarises(tmp_path, models) -> No
     assert "4 of 6 grasps stable" in text  # block 1 of 3, hammer 2 of 2, screwdriver 1 of 1
     assert "hand over" in text and "knife" in text
     # the approach swept against a user's hulls: the summary says how to sweep it against the mesh
-    assert PARAMS.approach_geometry == "hulls"
     assert "the 3 trials on users' meshes was swept against their convex parts (1 failed it)" in text
-    assert 'checks.approach_geometry = "mesh"' not in format_acceptance(counts, "mesh")
+    for geometry in ("mesh", "auto"):
+        assert 'checks.approach_geometry = "mesh"' not in format_acceptance(counts, geometry)
 
 
 def test_plan_leaves_out_a_models_shard_without_grasps(tmp_path, models) -> None:
@@ -289,6 +290,25 @@ def test_keys_follow_parameters_and_seed(tmp_path, models) -> None:
     # Options off by default keep the keys of pipelines that leave them out.
     assert base == [shard.key for shard in stage.planned(ChecksStageParams(approach_geometry="hulls"), 0, upstream)]
     assert base[0] != stage.planned(MESH_APPROACH, 0, upstream)[0].key
+
+
+def test_auto_sweeps_the_approach_of_users_meshes_against_the_mesh(tmp_path, models) -> None:
+    store = ShardStore(tmp_path)
+    upstream = planned_upstream(store, models)
+    as_users = {**upstream, "models": [PlannedShard(WorkItem(shard.item.item_id, {"source": "user"}), shard.key)
+                                       for shard in upstream["models"]]}
+    stage = ChecksStage()
+
+    def keys(params: ChecksStageParams, planned_upstream: dict) -> list[str]:
+        return [shard.key for shard in stage.planned(params, 0, planned_upstream)]
+
+    assert PARAMS.approach_geometry == "auto"
+    assert [shard.item.payload["params"]["approach_geometry"] for shard in stage.planned(PARAMS, 0, as_users)] == [
+        "mesh"] * len(upstream["models"])
+    assert keys(PARAMS, as_users) == keys(MESH_APPROACH, as_users) != keys(PARAMS, upstream)
+    # set to the hulls, users' meshes get the keys (and the trials) of every other model under auto
+    assert keys(HULLS, as_users) == keys(PARAMS, upstream) == keys(HULLS, upstream)
+    assert all("approach_geometry" not in shard.item.payload["params"] for shard in stage.planned(HULLS, 0, as_users))
 
 
 def test_trial_seeds_depend_on_the_grasp_not_on_its_neighbours() -> None:

@@ -85,12 +85,14 @@ class ChecksStageParams(StageParams):
         description="penetration of the object into the hand tolerated on the approach, m (the grasps stage "
         "accepts 1 mm; 2 mm leaves room for pybullet's hull of the convex parts)",
     )
-    approach_geometry: Literal["hulls", "mesh"] = Field(
-        "hulls", json_schema_extra={"omit_default": True},
+    approach_geometry: Literal["auto", "hulls", "mesh"] = Field(
+        "auto", json_schema_extra={"omit_default": True},
         description="what the approach sweep tests the hand against: 'hulls', the convex parts pybullet "
         "simulates, or 'mesh', samples of the model's own surface (one per approach_surface_spacing^2 of area "
-        "plus every vertex), as the grasps stage's collision test. Issue #17: 361 of the 385 authors' annotated "
-        "grasps that failed the approach on the hulls are free of the mesh (docs/checks.md)",
+        "plus every vertex), as the grasps stage's collision test; 'auto': 'mesh' for users' meshes, 'hulls' "
+        "for the others. Issue #17: 361 of the 385 authors' annotated grasps that failed the approach on the "
+        "hulls are free of the mesh (docs/checks.md); issue #16: scan stand-ins fail the approach on 11.0 % of "
+        "their trials against their hulls, 0.6 % against the mesh (docs/models.md)",
     )
     approach_surface_spacing: float = Field(
         0.001, gt=0.0, le=0.005, json_schema_extra={"omit_default": True},
@@ -149,3 +151,9 @@ class ChecksStageParams(StageParams):
         0.35, ge=0.0, le=3.2,
         description="largest rotation of the object relative to the hand for a held grasp, rad (20 deg)",
     )
+
+    def approach_for(self, source: str | None) -> Literal["hulls", "mesh"]:
+        """The approach geometry of a model from ``source`` (models' ``source`` column): ``auto`` resolved."""
+        if self.approach_geometry != "auto":
+            return self.approach_geometry
+        return "mesh" if source == "user" else "hulls"

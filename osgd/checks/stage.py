@@ -60,7 +60,7 @@ class ChecksStage(Stage):
         # item id -> (models key, grasps key) of the last plan, so that
         # summary() can find the shards its records were built from.
         self._planned_inputs: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {}
-        self._approach_geometry = "hulls"
+        self._approach_geometry = "auto"
 
     def plan(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
@@ -68,20 +68,26 @@ class ChecksStage(Stage):
         """One item per models shard, paired with the grasps shard of the same item id.
 
         The payload holds the parameters, the seed and the gripper's
-        dimensions, so a change to any of them gives new shard keys. A
-        models shard without a grasps shard (its grasps item failed and was
-        left out of the plan) gets no item.
+        dimensions, so a change to any of them gives new shard keys. The
+        approach geometry is resolved per models item (``auto``: the mesh
+        for a user's mesh); the convex hulls, the only approach before
+        ``auto``, stay out of the payload, so those shards keep their keys.
+        A models shard without a grasps shard (its grasps item failed and
+        was left out of the plan) gets no item.
         """
         assert isinstance(params, ChecksStageParams)
         self._approach_geometry = params.approach_geometry
         grasps_by_item = {shard.item.item_id: shard.key for shard in upstream.get("grasps", ())}
-        payload = {"params": params.key_dict(), "seed": int(seed), "gripper": dataclasses.asdict(PANDA)}
+        common = {key: value for key, value in params.key_dict().items() if key != "approach_geometry"}
         items = []
         for shard in upstream.get("models", ()):
             item_id = shard.item.item_id
             if item_id not in grasps_by_item:
                 log.info("checks: models item %s has no grasps shard (its grasps failed); not checked", item_id)
                 continue
+            mesh = params.approach_for(shard.item.payload.get("source")) == "mesh"
+            item_params = {**common, "approach_geometry": "mesh"} if mesh else common
+            payload = {"params": item_params, "seed": int(seed), "gripper": dataclasses.asdict(PANDA)}
             inputs = {"models": (shard.key,), "grasps": (grasps_by_item[item_id],)}
             items.append(WorkItem(item_id, payload, inputs))
             self._planned_inputs[item_id] = (inputs["models"], inputs["grasps"])
@@ -89,7 +95,8 @@ class ChecksStage(Stage):
 
     def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
         """Try every grasp of every model of the item's shards, in grasp-id order."""
-        params = ChecksStageParams(**item.payload["params"])
+        # a payload without approach_geometry is one of the convex hulls (plan)
+        params = ChecksStageParams(**{"approach_geometry": "hulls", **item.payload["params"]})
         gripper = Gripper(**item.payload["gripper"])
         seed = int(item.payload["seed"])
         models = store.read_many("models", item.inputs.get("models", ()))

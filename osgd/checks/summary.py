@@ -138,12 +138,13 @@ def _table(title: str, names: Sequence[str], counts: AcceptanceCounts, by: str) 
     return lines
 
 
-def format_acceptance(counts: AcceptanceCounts, approach_geometry: str = "hulls") -> str:
+def format_acceptance(counts: AcceptanceCounts, approach_geometry: str = "auto") -> str:
     """Acceptance per category, per task and the failure reasons, as text.
 
-    Users' meshes whose approach was swept against their convex parts get a
-    note: on scans that fails the approach far more often than against the
-    mesh (docs/models.md, "The checks on scans": 11 % against 0.6 %).
+    Users' meshes whose approach was swept against their convex parts
+    (``approach_geometry`` set to ``hulls``) get a note: on scans that fails
+    the approach far more often than against the mesh (docs/models.md, "The
+    checks on scans": 11 % against 0.6 %).
     """
     stable, trials = counts.rate()
     if not trials:

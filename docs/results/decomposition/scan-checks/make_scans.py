@@ -15,7 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[4] / "benchmarks"))
 
-from osgd.kernels import pin_kernels  # noqa: E402
+from osgd.kernels import pin_kernels
 
 pin_kernels()
 
@@ -34,9 +34,9 @@ def main(out: Path, categories: list[str]) -> None:
         variants = scans(generated.mesh, np.random.default_rng(1))
         for name, mesh in ((f"{category}_clean", variants["as built"][0]), (f"{category}_scan", variants["scan"][0])):
             length = float(true_length(mesh))
-            mesh = mesh.copy()
-            mesh.apply_scale(1000.0)  # millimetres, as a CAD export or a scanner's
-            mesh.export(out / f"{name}.obj")
+            in_millimetres = mesh.copy()
+            in_millimetres.apply_scale(1000.0)  # as a CAD export or a scanner's
+            in_millimetres.export(out / f"{name}.obj")
             (out / f"{name}.toml").write_text(f'category = "{category}"\nlength = {length:.6f}\n')
             print(f"{name}: {len(mesh.faces)} faces, length {length:.4f} m")
 
