@@ -139,7 +139,8 @@ def pair_tasks(mesh: trimesh.Trimesh, category: str, face_parts: np.ndarray, pai
 
 def ambiguous_pairs(pairs: list) -> np.ndarray:
     """(N,) bool: the pairs whose two contacts (either order, to 1e-6 model units) also carry another task."""
-    keys = [tuple(np.round(np.sort(np.stack([pair.contact_a, pair.contact_b]), axis=0), 6).ravel()) for pair in pairs]
+    keys = [tuple(sorted(tuple(np.round(contact, 6)) for contact in (pair.contact_a, pair.contact_b)))
+            for pair in pairs]
     tasks: dict[tuple, set[str]] = defaultdict(set)
     for key, pair in zip(keys, pairs, strict=True):
         tasks[key].add(pair.task)
@@ -218,7 +219,7 @@ def worst_figures(procedural_cases: list[Case], osgd_cases: list[Case], folder: 
         worst = sorted(procedural_cases, key=lambda case: case.score)[:4]
         lines.append(draw_cases(worst, folder / "parts-worst-procedural.png", columns=2, truth=True, panel=(6.0, 1.6)))
     if osgd_cases:
-        worst = sorted(osgd_cases, key=lambda case: case.score)[:6]
+        worst = sorted((case for case in osgd_cases if not np.isnan(case.score)), key=lambda case: case.score)[:6]
         lines.append(draw_cases(worst, folder / "parts-worst-osgd.png", columns=2, panel=(6.0, 2.6)))
     return lines
 

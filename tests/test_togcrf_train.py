@@ -364,7 +364,7 @@ def test_training_options_are_checked(data_dir, tmp_path):
     for change, message in (({"optimizer": "adam"}, "--optimizer"), ({"lr_schedule": "linear"}, "--lr-schedule"),
                             ({"scale_jitter": 1.5}, "--scale-jitter"), ({"val_samples": 12}, "--val-samples"),
                             ({"depth_reference": "floor"}, "--depth-reference"),
-                            ({"time_budget_minutes": 0.0}, "time budget 0.0 minutes")):
+                            ({"time_budget_minutes": -5.0}, "--time-budget -5.0")):
         with pytest.raises(ValueError, match=message):
             train(quick_config(data_dir, tmp_path / "run", max_samples=12, **change))
 

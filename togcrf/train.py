@@ -192,7 +192,8 @@ class TrainConfig:
         if self.val_samples < 0:
             raise ValueError(f"--val-samples {self.val_samples}: expected 0 or more")
         if self.time_budget_minutes is not None and not self.time_budget_minutes > 0:
-            raise ValueError(f"time budget {self.time_budget_minutes} minutes: expected more than 0, or none")
+            raise ValueError(f"--time-budget {self.time_budget_minutes}: expected minutes > 0 (0 or left out: "
+                             "no budget)")
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,8 @@ class LabelRule(BaseModel):
         description="parts held for the category's task; hand over must leave them clear"
     )
     working: tuple[str, ...] = Field(
-        description="parts that do the work: the task leaves them free, hand over holds them"
+        description="parts that do the work: the task leaves them free, hand over holds them; the first of "
+        "them that a tool has marks its working end (tool_axis)"
     )
     task_clearance: float = Field(
         0.01, ge=0.0, description="least distance, m, from the pads' region to a working part for the task label"

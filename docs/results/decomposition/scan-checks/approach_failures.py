@@ -14,11 +14,13 @@ import pyarrow.parquet as pq
 
 
 def shards(data: Path, pipeline: str, stage: str) -> list[Path]:
+    """The Parquet files of one stage of a pipeline's manifest."""
     manifest = json.loads((data / "manifests" / f"{pipeline}.json").read_text())
     return [data / stage / f"{shard['key']}.parquet" for shard in manifest["stages"][stage]["shards"]]
 
 
 def main(data: Path, pipelines: list[str]) -> None:
+    """Print the table of the module text, a row per pipeline and model."""
     reasons = ("approach_collision", "empty_close", "slipped_on_lift", "dropped_on_shake")
     print("| pipeline | model | hulls | grasps | lift-stable | " + " | ".join(reasons) + " |")
     print("| --- | --- | ---: | ---: | ---: |" + " ---: |" * len(reasons))

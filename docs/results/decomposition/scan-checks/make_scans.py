@@ -28,6 +28,7 @@ from osgd.models.stage import item_rng  # noqa: E402
 
 
 def main(out: Path, categories: list[str]) -> None:
+    """Write the clean and the scanned tool of each category, each with its sidecar, into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     for category in categories:
         generated = procedural.generate(category, item_rng(0, f"procedural/{category}_00"))
