@@ -192,8 +192,8 @@ class TrainConfig:
         if self.val_samples < 0:
             raise ValueError(f"--val-samples {self.val_samples}: expected 0 or more")
         if self.time_budget_minutes is not None and not self.time_budget_minutes > 0:
-            raise ValueError(f"--time-budget {self.time_budget_minutes}: expected minutes > 0 (0 or left out: "
-                             "no budget)")
+            raise ValueError(f"--time-budget {self.time_budget_minutes}: expected minutes > 0, or no budget "
+                             "(None here; 0 or left out on the command line)")
 
 
 @dataclass(frozen=True)
