@@ -149,15 +149,20 @@ BEFORE_ISSUE_22 = "ed5ac77"
 
 
 def time_items(source: Path, data_dir: Path, overrides: list[str], items: int,
-               config: Path = ROOT / "pipelines" / "osgd.toml") -> float:
-    """Seconds per sample of the samples stage of the osgd checkout at ``source``, in a fresh process."""
-    arguments = [sys.executable, str(ROOT / "benchmarks" / "time_samples_items.py"), str(data_dir),
-                 str(config), "--items", str(items)]
+               config: Path = ROOT / "pipelines" / "osgd.toml", stage: str = "samples", summary: bool = False) -> float:
+    """Seconds per row of a stage's items of the osgd checkout at ``source``, in a fresh process.
+
+    With ``summary``, the seconds of the stage's summary of all its planned
+    shards instead (``benchmarks/time_stage_items.py``).
+    """
+    arguments = [sys.executable, str(ROOT / "benchmarks" / "time_stage_items.py"), str(data_dir),
+                 str(config), "--stage", stage, "--items", str(items)] + (["--summary"] if summary else [])
     for override in overrides:
         arguments += ["-s", override]
     environment = {**os.environ, "PYTHONPATH": str(source), "PYTHONHASHSEED": "0"}
     result = subprocess.run(arguments, check=True, capture_output=True, text=True, env=environment, cwd=source)
-    return float(json.loads(result.stdout.strip().splitlines()[-1])["seconds_per_sample"])
+    answer = json.loads(result.stdout.strip().splitlines()[-1])
+    return float(answer["seconds"] if summary else answer["seconds_per_row"])
 
 
 def checkout(ref: str, folder: Path) -> Path:

@@ -22,6 +22,11 @@ side by side. Where the config sets ``maximal_coordinates``, the config
 with multibodies runs as a third arm, so that the option's own effect
 shows.
 
+With ``--built DATA_DIR`` (a whole build of ``pipelines/osgd.toml``) it only
+times ``--items`` of that build's scenes items and the stage's summary (the
+stacking statistics ``osgd run`` prints) in fresh one-core processes,
+commit ``--before`` against the working tree.
+
 It then prints where the stage's time goes (cProfile over the first run):
 the share of the attempts that were thrown away, creating the bodies, the
 per-step blow-up test and the physics steps.
@@ -35,6 +40,7 @@ Usage::
     python benchmarks/bench_scenes.py --osgd-models ../shared/osgd-models --scenes 200 --config pipelines/osgd.toml
     python benchmarks/bench_scenes.py --osgd-models ../shared/osgd-models --scenes 200 --config pipelines/osgd.toml \
         --config-only
+    python benchmarks/bench_scenes.py --built DATA_DIR --before COMMIT [--items 9]
 
 ``--osgd-models`` builds (once; kept in ``.bench/osgd-render``) the small
 pipeline of 20 of the paper authors' models that ``bench_render.py
@@ -48,6 +54,7 @@ import cProfile
 import pstats
 import resource
 import sys
+import tempfile
 import time
 from collections import Counter
 from pathlib import Path
@@ -297,6 +304,30 @@ def where_time_goes(pool: ModelPool, params: ScenesStageParams, seed: int, scene
         print(f"  {label:24s} {100 * seconds / whole:5.1f} % (cumulative)")
 
 
+def bench_built(data_dir: Path, items: int, before: str) -> None:
+    """Today's scenes stage and stacking statistics against commit ``before``, on a whole build of ``osgd.toml``.
+
+    Both time the same ``items`` scenes items (the first warms up) in fresh
+    one-core processes, then the stage's summary (the stacking statistics
+    of 200 of the build's piles, which ``osgd run`` prints after the stage).
+    """
+    from bench_render import ROOT, checkout, time_items  # noqa: PLC0415 - the same helpers as the samples stage's
+
+    print(f"scenes stage on {items} items of the build of pipelines/osgd.toml in {data_dir}, one process each:")
+    config = ROOT / "pipelines" / "osgd.toml"
+    times = {}
+    with tempfile.TemporaryDirectory() as folder:
+        old = checkout(before, Path(folder))
+        for label, source in ((before, old), ("working tree", ROOT)):
+            per_scene = time_items(source, data_dir, [], items, config, stage="scenes")
+            summary = time_items(source, data_dir, [], items, config, stage="scenes", summary=True)
+            times[label] = per_scene, summary
+            print(f"  {label:12s}: {per_scene:.3f} s per scene per core; the stage's summary {summary:.1f} s",
+                  flush=True)
+    (stage_before, summary_before), (stage_today, summary_today) = times[before], times["working tree"]
+    print(f"  ratio: {stage_before / stage_today:.2f}x the stage, {summary_before / summary_today:.2f}x its summary")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data-dir", type=Path, default=None, help="data dir with a models table")
@@ -312,7 +343,15 @@ def main() -> None:
                              "dropped as before issue #22's second round (e.g. pipelines/osgd.toml)")
     parser.add_argument("--config-only", action="store_true",
                         help="with --config: only that comparison (no baselines, no profile)")
+    parser.add_argument("--built", type=Path, default=None,
+                        help="a data dir where `osgd run pipelines/osgd.toml` built the scenes: time --items of its "
+                             "scenes items and the stage's summary with --before and today (skips the rest)")
+    parser.add_argument("--before", default="b370b67", help="with --built: the commit to compare today's with")
+    parser.add_argument("--items", type=int, default=9, help="with --built: scenes items timed (the first warms up)")
     arguments = parser.parse_args()
+    if arguments.built is not None:
+        bench_built(arguments.built, arguments.items, arguments.before)
+        return
     if arguments.osgd_models is not None:
         from bench_render import ROOT, osgd_pipeline  # noqa: PLC0415 - the same small pipeline of the authors' models
 

@@ -58,6 +58,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: The corners of the box ``[-1, 1]^3``, x slowest: a box's corners are ``centre + half * UNIT_BOX_CORNERS``.
+UNIT_BOX_CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+
 
 @dataclass(frozen=True)
 class Gripper:
@@ -167,6 +170,36 @@ class Gripper:
             ("finger_b", np.array([finger_x, 0.0, finger_z]), finger_half.copy()),
             ("palm", np.array([0.0, 0.0, palm_z]), palm_half),
         ]
+
+    def box_corners(self, openings: np.ndarray) -> np.ndarray:
+        """The corners of the boxes of :meth:`boxes`, for many openings at once.
+
+        Value for value the corners ``centre + half * (+-1, +-1, +-1)`` of
+        ``boxes(opening)`` for each opening, with the same operations
+        (issue #22: one call per grasp took 8 % of the samples stage).
+
+        Parameters
+        ----------
+        openings : (G,) float
+            Metres; clipped to ``[0, max_opening]``.
+
+        Returns
+        -------
+        (G, 24, 3) float64
+            Gripper frame: the 8 corners of finger A, finger B and the palm,
+            each in the order of :data:`UNIT_BOX_CORNERS`.
+        """
+        openings = np.clip(np.asarray(openings, dtype=np.float64).reshape(-1), 0.0, self.max_opening)
+        count = len(openings)
+        centres = np.zeros((count, 3, 3))
+        centres[:, 1, 0] = openings / 2 + self.finger_thickness / 2
+        centres[:, 0, 0] = -centres[:, 1, 0]
+        centres[:, 2, 2] = -(self.finger_depth / 2 + self.palm_thickness / 2)
+        halves = np.empty((count, 3, 3))
+        halves[:, :2] = [self.finger_thickness / 2, self.finger_width / 2, self.finger_depth / 2]
+        halves[:, 2, 0] = (openings + 2 * self.finger_thickness) / 2
+        halves[:, 2, 1:] = [self.palm_width / 2, self.palm_thickness / 2]
+        return (centres[:, :, None, :] + halves[:, :, None, :] * UNIT_BOX_CORNERS).reshape(count, 24, 3)
 
 
 #: The default gripper, close to a Franka Emika Panda hand.

@@ -1,6 +1,9 @@
 """pybullet bodies from ``models`` rows: the one place objects enter physics.
 
-Used by the check stage (grasp trials) and the stack stage (dropping piles).
+Used by the check stage (grasp trials), the stack stage (dropping piles,
+judging their stored parts) and the render stage (the gripper against the
+pile), the last two through :class:`PileWorld`, a worker's world of static
+piles for closest-point queries.
 
 Frames
 ------
@@ -45,15 +48,20 @@ import functools
 import hashlib
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from osgd.quiet import import_pybullet
+from osgd.raycast import rotate_rows
+
+if TYPE_CHECKING:
+    from osgd.gripper import Gripper
 
 
 @functools.cache
@@ -207,6 +215,18 @@ def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(moments, 1e-9), Rotation.from_matrix(axes).as_quat()
 
 
+@functools.lru_cache(maxsize=1024)
+def _principal_inertia_of(inertia: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`principal_inertia` of a flat (9,) inertia tensor, computed once per tensor and process.
+
+    Every body of every pile asked for it anew: 4 % of the stacking (issue
+    #22). The arrays are read-only, since the cache hands out the same ones.
+    """
+    moments, quaternion = principal_inertia(np.asarray(inertia, dtype=np.float64).reshape(3, 3))
+    moments.flags.writeable = quaternion.flags.writeable = False
+    return moments, quaternion
+
+
 def _compound_name(model: Mapping[str, Any], max_hull_vertices: int) -> str:
     """The file name of a model's collision compound in this process's folder.
 
@@ -268,7 +288,7 @@ def create_object_body(
     shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(obj_path), physicsClientId=client)
     if shape < 0:
         raise RuntimeError(f"model {model['model_id']}: pybullet could not create its collision shape")
-    moments, inertial_quaternion = principal_inertia(np.asarray(model["inertia"], dtype=np.float64).reshape(3, 3))
+    moments, inertial_quaternion = _principal_inertia_of(tuple(float(value) for value in model["inertia"]))
     inertial_position = np.asarray(model["center_of_mass"], dtype=np.float64)
     body_mass = float(model["mass"] if mass is None else mass)
     body = pybullet.createMultiBody(
@@ -411,3 +431,102 @@ def worker_client(timestep: float = 1.0 / 240.0, gravity: float = -9.81) -> Iter
         yield client
     finally:
         _ProcessClient.in_use = False
+
+
+#: Where bodies wait between piles: body ``i`` at ``PARKING_ORIGIN + PARKING_SPACING * (i % 100, i // 100, 0)``,
+#: far from every pile and from each other. A body left where its last pile put it overlaps the next pile's,
+#: and pybullet's broadphase then walks every such overlap whenever a body moves there: with the ~1,800
+#: gripper and object bodies a worker keeps, that made each move of the gripper cost ~0.2 ms (issue #22).
+PARKING_ORIGIN = np.array([1000.0, 1000.0, 1000.0])
+PARKING_SPACING = 2.0
+
+
+class PileWorld:
+    """A worker's pybullet world of static piles for geometric queries: bodies made once, moved from pile to pile.
+
+    Static bodies are kept per model id and decomposition (equal keys:
+    equal collision compounds, as :func:`create_object_body` assumes for its
+    compound files), as many per model as a pile has copies of it, and parked far
+    away between piles (:data:`PARKING_ORIGIN`). The world is never
+    stepped: closest-point queries between two bodies depend only on their
+    shapes and poses, so a pile placed here answers them as a pile loaded
+    anew in an empty world (a test checks it), without building its
+    collision compounds again (issue #22). Used by the samples stage's
+    gripper collisions (:mod:`osgd.samples.collision`, which keeps its
+    gripper bodies in :attr:`gripper_bodies`) and the scenes stage's test
+    of the stored parts (:func:`osgd.scenes.drop.stored_penetration`).
+
+    Parameters
+    ----------
+    fixtures : callable(client) -> list of int, optional
+        Makes the world's fixed bodies (a floor, walls) when it connects;
+        their ids are :attr:`fixtures`.
+    """
+
+    def __init__(self, fixtures: Callable[[int], list[int]] | None = None) -> None:
+        self.client: int | None = None
+        self._make_fixtures = fixtures
+        self.fixtures: list[int] = []
+        self._bodies: dict[str, list[ObjectBody]] = {}
+        self.gripper_bodies: dict[tuple[Gripper, float], int] = {}
+        self._hull_points: dict[str, np.ndarray] = {}
+
+    def _connected(self) -> int:
+        pybullet = pybullet_module()
+        if self.client is None or not pybullet.isConnected(self.client):
+            self.client = pybullet.connect(pybullet.DIRECT)
+            self._bodies.clear()
+            self.gripper_bodies.clear()
+            self.fixtures = self._make_fixtures(self.client) if self._make_fixtures is not None else []
+        return self.client
+
+    def close(self) -> None:
+        """Disconnect the world (a later pile connects a new one)."""
+        pybullet = pybullet_module()
+        if self.client is not None and pybullet.isConnected(self.client):
+            pybullet.disconnect(self.client)
+        self.client = None
+
+    def bounds(self, models: Mapping[str, Mapping[str, Any]], objects: Sequence[Mapping[str, Any]]) -> np.ndarray:
+        """Each object's axis-aligned box in the world, (N, 2, 3): its convex parts' vertices at its pose."""
+        from scipy.spatial.transform import Rotation  # noqa: PLC0415
+
+        boxes = np.zeros((len(objects), 2, 3))
+        for index, obj in enumerate(objects):
+            model = models[obj["model_id"]]
+            key = _compound_name(model, 0)
+            points = self._hull_points.get(key)
+            if points is None:
+                points = np.concatenate([np.asarray(part["vertices"], dtype=np.float64).reshape(-1, 3)
+                                         for part in model["convex_parts"]])
+                self._hull_points[key] = points
+            rotation = Rotation.from_quat(np.asarray(obj["quaternion"], dtype=np.float64)).as_matrix()
+            world = rotate_rows(points, rotation) + np.asarray(obj["position"], dtype=np.float64)
+            boxes[index] = world.min(axis=0), world.max(axis=0)
+        return boxes
+
+    def place(self, models: Mapping[str, Mapping[str, Any]], objects: Sequence[Mapping[str, Any]]) -> list[int]:
+        """Body ids of the pile's objects, in scene order, each at its scene pose."""
+        client = self._connected()
+        used: Counter[str] = Counter()
+        body_ids = []
+        for obj in objects:
+            model = models[obj["model_id"]]
+            key = _compound_name(model, 0)  # the mesh and its decomposition, as the compound files
+            copies = self._bodies.setdefault(key, [])
+            if used[key] == len(copies):
+                copies.append(create_object_body(client, model, mass=0.0))
+            body = copies[used[key]]
+            used[key] += 1
+            set_mesh_pose(body, np.asarray(obj["position"], dtype=np.float64),
+                          np.asarray(obj["quaternion"], dtype=np.float64))
+            body_ids.append(body.body_id)
+        return body_ids
+
+    def park(self, body_ids: Iterable[int]) -> None:
+        """Move bodies to their parking spots (:data:`PARKING_ORIGIN`), away from every pile."""
+        pybullet = pybullet_module()
+        for body in body_ids:
+            spot = PARKING_ORIGIN + PARKING_SPACING * np.array([body % 100, body // 100, 0.0])
+            pybullet.resetBasePositionAndOrientation(body, spot.tolist(), [0.0, 0.0, 0.0, 1.0],
+                                                     physicsClientId=self.client)

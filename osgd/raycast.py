@@ -10,9 +10,16 @@ an AVX-512 one). The stages therefore keep embree's answer to *which* and
 compute *where* again here, in float64, with element-wise IEEE operations
 only: each of them is correctly rounded whatever the SIMD width, and numpy
 never fuses a multiply and an add across two ufunc calls.
+
+Asking embree needs a scene (a mesh and its BVH) per mesh; building it costs
+about a hundred casts, so :class:`EmbreeScenes` keeps them per process, each
+mesh in its own frame, the rays turned into that frame.
 """
 
 from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
 
 import numpy as np
 
@@ -89,3 +96,48 @@ def plane_hit_distances(origins: np.ndarray, directions: np.ndarray, triangles: 
     with np.errstate(divide="ignore", invalid="ignore"):
         distances = dot_rows(normals, triangles[:, 0] - origins) / along
     return np.where(along != 0.0, distances, np.nan)
+
+
+#: Embree scenes kept per process by :class:`EmbreeScenes` (each holds a mesh and its BVH, about 100 bytes
+#: per triangle: 64 of the authors' largest meshes take about 300 MB). 128, so that all 75 of the authors'
+#: models stay built: at 64 a sixth of the casts rebuilt a scene, 7 % of the samples stage (issue #22).
+EMBREE_SCENES_KEPT = 128
+
+
+class EmbreeScenes:
+    """Embree scenes of meshes in their own frame, built once per mesh key and reused.
+
+    Building the scene (its BVH) costs about 100 times casting an object's
+    rays at it (an authors' pen of 47k triangles: 150 ms against 1.5 ms), so
+    the ``capacity`` most recently used are kept. Equal keys must mean
+    equal meshes (the samples stage's renderer and silhouettes, and the
+    scenes stage's top-down views, key them by model id).
+    """
+
+    def __init__(self, capacity: int = EMBREE_SCENES_KEPT) -> None:
+        self.capacity = capacity
+        self._scenes: OrderedDict[str, Any] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._scenes)
+
+    def clear(self) -> None:
+        """Drop every scene (their memory with them)."""
+        self._scenes.clear()
+
+    def scene(self, key: str, vertices: np.ndarray, faces: np.ndarray) -> Any:
+        """The embree scene of the mesh called ``key``: ``vertices`` (V, 3) and ``faces`` (F, 3), in their frame.
+
+        ``vertices`` and ``faces`` are read only when ``key`` has no scene yet.
+        """
+        scene = self._scenes.pop(key, None)
+        if scene is None:
+            from embreex import mesh_construction, rtcore_scene  # noqa: PLC0415
+
+            scene = rtcore_scene.EmbreeScene()
+            mesh_construction.TriangleMesh(scene, np.asarray(vertices, dtype=np.float32).reshape(-1, 3),
+                                           np.asarray(faces, dtype=np.int32).reshape(-1, 3))
+        self._scenes[key] = scene
+        while len(self._scenes) > self.capacity:
+            self._scenes.popitem(last=False)
+        return scene

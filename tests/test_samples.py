@@ -12,6 +12,8 @@ from test_samples_fixtures import TOP_DOWN_ACROSS_Y, grasp_row, scene_row, write
 
 from osgd.camera import KINECT_V2
 from osgd.contract.samples import decode_row
+from osgd.gripper import PANDA, UNIT_BOX_CORNERS
+from osgd.raycast import rotate_rows
 from osgd.samples.boxes import SilhouetteCounter, visible_boxes
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.pictures import show_sample
@@ -112,6 +114,9 @@ def test_floor_depth_matches_the_plane_it_sees():
     expected = -pose.position[2] / world_z_per_depth
     assert np.all(rendering.mask == 0)
     np.testing.assert_allclose(rendering.depth, expected, atol=1e-5)
+    # Value for value the rays turned by rotate_rows, whose fixed order of operations every processor keeps.
+    exact = -pose.position[2] / rotate_rows(rays.reshape(-1, 3), pose.rotation)[:, 2]
+    np.testing.assert_array_equal(rendering.depth, exact.reshape(rendering.depth.shape))
 
 
 def test_camera_pose_looks_at_the_aim_point_from_the_given_height():
@@ -244,6 +249,22 @@ def test_rectangle_corners_round_trip():
     recovered = rectangles_from_corners(corners)
     assert np.allclose(recovered[:, :4], rectangles[:, :4])
     assert np.allclose(wrap_half_turn(recovered[:, 4] - rectangles[:, 4]), 0.0, atol=1e-9)
+
+
+def test_suppression_equals_the_plain_greedy_rule_on_random_candidates():
+    """Each candidate, most parallel first, is kept unless a kept one lies within the radius or the test rejects it."""
+    rng = np.random.default_rng(5)
+    for trial in range(30):
+        count = int(rng.integers(1, 80))
+        centres, angles = rng.uniform(0.0, 0.05, (count, 3)), rng.uniform(0.0, np.pi / 2, count).round(1)  # ties
+        rejected = set(rng.choice(count, size=count // 4, replace=False).tolist())
+        expected: list[int] = []
+        for index in sorted(range(count), key=lambda index: -angles[index]):  # stable, as the rule's ties
+            if index in rejected or any(np.linalg.norm(centres[kept] - centres[index]) < 0.01 for kept in expected):
+                continue
+            expected.append(index)
+        kept = suppress(centres, angles, 0.01, accept=lambda index, rejected=rejected: index not in rejected)
+        assert kept.tolist() == expected, trial
 
 
 def test_suppression_keeps_the_most_parallel_grasp_and_skips_rejected_ones():
@@ -447,11 +468,18 @@ def test_grasp_row_fixture_is_self_consistent():
 
 # -- gripper collisions -----------------------------------------------------------------
 
+def test_the_gripper_box_corners_are_those_of_its_boxes_at_every_opening() -> None:
+    openings = np.concatenate([[-0.01, 0.0, PANDA.max_opening, 0.2], np.random.default_rng(2).uniform(0, 0.08, 50)])
+    expected = np.stack([np.concatenate([centre + half * UNIT_BOX_CORNERS for _, centre, half in PANDA.boxes(opening)])
+                         for opening in openings])
+    np.testing.assert_array_equal(PANDA.box_corners(openings), expected)
+
+
 def test_a_worker_world_reused_across_piles_judges_grasps_as_a_fresh_world_does() -> None:
     """Bodies moved from pile to pile (copies of one model included) collide as freshly loaded ones."""
     from osgd.gripper import PANDA  # noqa: PLC0415
-    from osgd.physics import create_object_body, physics_client, pybullet_module  # noqa: PLC0415
-    from osgd.samples.collision import PileCollider, PileWorld, pile_collider  # noqa: PLC0415
+    from osgd.physics import PileWorld, create_object_body, physics_client, pybullet_module  # noqa: PLC0415
+    from osgd.samples.collision import PileCollider, pile_collider  # noqa: PLC0415
 
     hammer, screwdriver, block = fixture_models()
     models = {row["model_id"]: row for row in (hammer, screwdriver, block)}

@@ -223,6 +223,33 @@ def test_stored_penetration_measures_overlap_of_the_stored_parts_and_with_the_fl
     assert pair == (0, -1)
 
 
+def test_stored_penetration_in_the_reused_world_equals_a_fresh_world() -> None:
+    """Bodies kept from pile to pile (copies of one model included) overlap as bodies loaded anew."""
+    models = fixture_models()
+    rng = np.random.default_rng(3)
+    params = ScenesStageParams()
+    answers = {"reused": [], "fresh": []}
+    for pile in range(6):
+        chosen = [models[int(index)] for index in rng.integers(len(models), size=2 + pile % 3)]
+        poses = [(np.array([*rng.uniform(-0.05, 0.05, 2), rng.uniform(0.0, 0.06)]),
+                  Rotation.random(random_state=rng).as_quat()) for _ in chosen]
+        answers["reused"].append(stored_penetration(chosen, poses, params))
+        with physics_client() as client:  # the pile loaded anew, as before issue #22
+            walls = build_world(client, params)
+            bodies = [create_object_body(client, model, position, quaternion, mass=0.0).body_id
+                      for model, (position, quaternion) in zip(chosen, poses, strict=True)]
+            deepest, pair = 0.0, (-1, -1)
+            for index, body in enumerate(bodies):
+                for other_index, other in [*((j, bodies[j]) for j in range(index + 1, len(bodies))),
+                                           *((-1, wall) for wall in walls)]:
+                    for point in pybullet.getClosestPoints(body, other, 0.0, physicsClientId=client):
+                        if -point[8] > deepest:
+                            deepest, pair = -point[8], (index, other_index)
+            answers["fresh"].append((deepest, pair))
+    assert answers["reused"] == answers["fresh"]
+    assert sum(depth > 0 for depth, _ in answers["fresh"]) >= 3  # overlapping piles are among them
+
+
 def test_piles_dropped_with_reduced_hulls_are_judged_on_the_stored_parts() -> None:
     # Hulls of 5 corners stand in for the boxes and bars while dropping: they let them sink into each other,
     # and only the check on the stored boxes rejects that.

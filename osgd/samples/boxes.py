@@ -20,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from osgd.camera import CameraIntrinsics
-from osgd.samples.renderer import EMBREE_SCENES_KEPT, EmbreeScenes, RenderObject, cast_object
+from osgd.raycast import EMBREE_SCENES_KEPT, EmbreeScenes
+from osgd.samples.renderer import RenderObject, cast_object
 from osgd.samples.viewpoint import CameraPose
 
 
@@ -55,7 +56,7 @@ class SilhouetteCounter:
     For the renderers that do not count them in their own pass (egl, tiny;
     the embree renderer's :attr:`Rendering.silhouettes` come from the same
     casts). The rays are turned into the mesh's frame and cast at its scene
-    in :class:`osgd.samples.renderer.EmbreeScenes`, built once per mesh.
+    in :class:`osgd.raycast.EmbreeScenes`, built once per mesh.
 
     Parameters
     ----------

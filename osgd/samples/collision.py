@@ -9,20 +9,20 @@ tolerance) to an object other than the one grasped. The floor is not
 tested: the finger boxes reach ``finger_depth / 2`` past the grasp centre,
 so a grasp on a thin tool lying on the table would always touch it.
 
-Each worker process keeps one such world (:class:`PileWorld`): a static body
-per model and copy is made the first time a pile needs it and moved into
-place for every later pile, and the gripper bodies are kept per opening, so
-a sample no longer loads its pile's collision compounds anew (issue #22).
-The world is never stepped: only the bodies of the pile at hand are ever
-asked about, so bodies left where an earlier pile put them change nothing.
+Each worker process keeps one such world (:func:`worker_pile_world`, an
+:class:`osgd.physics.PileWorld`): a static body per model and copy is made
+the first time a pile needs it and moved into place for every later pile,
+and the gripper bodies are kept per opening, so a sample no longer loads its
+pile's collision compounds anew (issue #22). The world is never stepped:
+only the bodies of the pile at hand are ever asked about, so bodies parked
+where an earlier pile left them change nothing.
 """
 
 from __future__ import annotations
 
 import atexit
 import functools
-from collections import Counter
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -30,21 +30,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from osgd.gripper import Gripper
-from osgd.physics import ObjectBody, create_object_body, pybullet_module, set_mesh_pose
-from osgd.raycast import rotate_rows
-
-#: Where bodies wait between piles: body ``i`` at ``PARKING_ORIGIN + PARKING_SPACING * (i % 100, i // 100, 0)``,
-#: far from every pile and from each other. A body left where its last pile put it overlaps the next pile's,
-#: and pybullet's broadphase then walks every such overlap whenever a body moves there: with the ~1,800
-#: gripper and object bodies a worker keeps, that made each move of the gripper cost ~0.2 ms (issue #22).
-PARKING_ORIGIN = np.array([1000.0, 1000.0, 1000.0])
-PARKING_SPACING = 2.0
+from osgd.physics import PileWorld, pybullet_module
 
 #: How close, m, an object's axis-aligned box must come to the gripper's for pybullet to be asked: well over
 #: the penetration tolerance and pybullet's collision margins (about 1 mm on convex hulls, docs/checks.md).
 BOUNDS_MARGIN = 0.01
-
-_UNIT_CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
 
 
 class PileCollider:
@@ -138,15 +128,11 @@ class PileCollider:
         """
         if self.bounds is None:
             return np.ones((len(positions), len(self.bodies)), dtype=bool)
-        corners = np.stack([self._corners(float(opening)) for opening in openings]).reshape(len(openings), -1, 3)
+        corners = self.gripper.box_corners(openings)
         world = np.einsum("gij,gkj->gki", np.asarray(rotations, dtype=np.float64), corners)
         world += np.asarray(positions, dtype=np.float64)[:, None, :]
         low, high = world.min(axis=1) - BOUNDS_MARGIN, world.max(axis=1) + BOUNDS_MARGIN
         return np.all((self.bounds[None, :, 0] <= high[:, None]) & (self.bounds[None, :, 1] >= low[:, None]), axis=2)
-
-    def _corners(self, opening: float) -> np.ndarray:
-        """The corners of the gripper's boxes at ``opening``, (24, 3), gripper frame."""
-        return np.concatenate([centre + half * _UNIT_CORNERS for _, centre, half in self.gripper.boxes(opening)])
 
     def _gripper_body(self, opening: float) -> int:
         """A static gripper body per opening, made once and moved about.
@@ -168,80 +154,9 @@ class PileCollider:
             self._grippers[self.gripper, opening] = body
         return body
 
-class PileWorld:
-    """A worker's pybullet world for :class:`PileCollider`: bodies made once, moved from pile to pile.
-
-    Static bodies are kept per model id (equal ids: equal collision
-    compounds, as :func:`osgd.physics.create_object_body` assumes for its
-    compound files), as many per model as a pile has copies of it; gripper
-    bodies per gripper and opening. Use :func:`worker_pile_world`.
-    """
-
-    def __init__(self) -> None:
-        self.client: int | None = None
-        self._bodies: dict[str, list[ObjectBody]] = {}
-        self.gripper_bodies: dict[tuple[Gripper, float], int] = {}
-        self._hull_points: dict[str, np.ndarray] = {}
-
-    def _connected(self) -> int:
-        pybullet = pybullet_module()
-        if self.client is None or not pybullet.isConnected(self.client):
-            self.client = pybullet.connect(pybullet.DIRECT)
-            self._bodies.clear()
-            self.gripper_bodies.clear()
-        return self.client
-
-    def close(self) -> None:
-        """Disconnect the world (a later pile connects a new one)."""
-        pybullet = pybullet_module()
-        if self.client is not None and pybullet.isConnected(self.client):
-            pybullet.disconnect(self.client)
-        self.client = None
-
-    def bounds(self, models: Mapping[str, Mapping[str, Any]], objects: Sequence[Mapping[str, Any]]) -> np.ndarray:
-        """Each object's axis-aligned box in the world, (N, 2, 3): its convex parts' vertices at its pose."""
-        boxes = np.zeros((len(objects), 2, 3))
-        for index, obj in enumerate(objects):
-            points = self._hull_points.get(obj["model_id"])
-            if points is None:
-                parts = models[obj["model_id"]]["convex_parts"]
-                points = np.concatenate([np.asarray(part["vertices"], dtype=np.float64).reshape(-1, 3)
-                                         for part in parts])
-                self._hull_points[obj["model_id"]] = points
-            rotation = Rotation.from_quat(np.asarray(obj["quaternion"], dtype=np.float64)).as_matrix()
-            world = rotate_rows(points, rotation) + np.asarray(obj["position"], dtype=np.float64)
-            boxes[index] = world.min(axis=0), world.max(axis=0)
-        return boxes
-
-    def place(self, models: Mapping[str, Mapping[str, Any]], objects: Sequence[Mapping[str, Any]]) -> list[int]:
-        """Body ids of the pile's objects, in scene order, each at its scene pose."""
-        client = self._connected()
-        used: Counter[str] = Counter()
-        body_ids = []
-        for obj in objects:
-            model_id = obj["model_id"]
-            copies = self._bodies.setdefault(model_id, [])
-            if used[model_id] == len(copies):
-                copies.append(create_object_body(client, models[model_id], mass=0.0))
-            body = copies[used[model_id]]
-            used[model_id] += 1
-            set_mesh_pose(body, np.asarray(obj["position"], dtype=np.float64),
-                          np.asarray(obj["quaternion"], dtype=np.float64))
-            body_ids.append(body.body_id)
-        return body_ids
-
-    def park(self, body_ids: Iterable[int]) -> None:
-        """Move bodies to their parking spots (:data:`PARKING_ORIGIN`), away from every pile."""
-        pybullet = pybullet_module()
-        for body in body_ids:
-            spot = PARKING_ORIGIN + PARKING_SPACING * np.array([body % 100, body // 100, 0.0])
-            pybullet.resetBasePositionAndOrientation(body, spot.tolist(), [0.0, 0.0, 0.0, 1.0],
-                                                     physicsClientId=self.client)
-
-
 @functools.cache
 def worker_pile_world() -> PileWorld:
-    """This process's :class:`PileWorld`, disconnected at exit."""
+    """This process's :class:`osgd.physics.PileWorld` for the gripper collisions, disconnected at exit."""
     world = PileWorld()
     atexit.register(world.close)
     return world

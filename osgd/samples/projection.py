@@ -267,15 +267,15 @@ def suppress(
         Indices of the kept grasps, in the order visited.
     """
     order = np.argsort(-np.asarray(angles, dtype=np.float64), kind="stable")
+    centres = np.asarray(centres, dtype=np.float64)
+    suppressed = np.zeros(len(centres), dtype=bool)  # within radius of a kept grasp
     kept: list[int] = []
     for index in order:
-        if kept and radius > 0:
-            distances = np.linalg.norm(centres[kept] - centres[index], axis=1)
-            if np.any(distances < radius):
-                continue
-        if accept is not None and not accept(int(index)):
+        if suppressed[index] or (accept is not None and not accept(int(index))):
             continue
         kept.append(int(index))
+        if radius > 0:
+            suppressed |= np.linalg.norm(centres - centres[index], axis=1) < radius
     return np.asarray(kept, dtype=np.int64)
 
 
