@@ -194,7 +194,7 @@ def cast_view(meshes: Sequence[PosedMesh], axis: str = "top", pixel: float = 0.0
     distances = np.full((len(meshes), *shape), np.inf)
     for index, mesh in enumerate(meshes):
         # Cast in the mesh's frame at its scene built once per process (building one per object and view took
-        # half of the stacking statistics; issue #22); the distances below are on the world triangles.
+        # a third of the stacking statistics; issue #22); the distances below are on the world triangles.
         scene = view_scenes().scene(mesh.model_id, mesh.local_vertices, mesh.faces)
         local_origins = rotate_rows(origins - mesh.position, mesh.rotation.T).astype(np.float32)
         local_directions = np.broadcast_to(mesh.rotation.T @ direction, origins.shape).astype(np.float32)
