@@ -1,9 +1,10 @@
 """pybullet bodies from ``models`` rows: the one place objects enter physics.
 
 Used by the check stage (grasp trials), the stack stage (dropping piles,
-judging their stored parts) and the render stage (the gripper against the
-pile), the last two through :class:`PileWorld`, a worker's world of static
-piles for closest-point queries.
+judging their stored parts, the stacking statistics' contacts) and the
+render stage (the gripper against the pile), the last two through
+:class:`PileWorld`, a worker's world of static piles for closest-point
+queries.
 
 Frames
 ------
@@ -288,7 +289,8 @@ def create_object_body(
     shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, fileName=str(obj_path), physicsClientId=client)
     if shape < 0:
         raise RuntimeError(f"model {model['model_id']}: pybullet could not create its collision shape")
-    moments, inertial_quaternion = _principal_inertia_of(tuple(float(value) for value in model["inertia"]))
+    moments, inertial_quaternion = _principal_inertia_of(
+        tuple(np.asarray(model["inertia"], dtype=np.float64).reshape(-1).tolist()))
     inertial_position = np.asarray(model["center_of_mass"], dtype=np.float64)
     body_mass = float(model["mass"] if mass is None else mass)
     body = pybullet.createMultiBody(
@@ -453,8 +455,9 @@ class PileWorld:
     anew in an empty world (a test checks it), without building its
     collision compounds again (issue #22). Used by the samples stage's
     gripper collisions (:mod:`osgd.samples.collision`, which keeps its
-    gripper bodies in :attr:`gripper_bodies`) and the scenes stage's test
-    of the stored parts (:func:`osgd.scenes.drop.stored_penetration`).
+    gripper bodies in :attr:`gripper_bodies`), the scenes stage's test
+    of the stored parts (:func:`osgd.scenes.drop.stored_penetration`) and
+    the stacking statistics' contacts (:func:`osgd.scenes.statistics.scene_contacts`).
 
     Parameters
     ----------

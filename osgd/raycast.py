@@ -126,9 +126,21 @@ class EmbreeScenes:
         self._scenes.clear()
 
     def scene(self, key: str, vertices: np.ndarray, faces: np.ndarray) -> Any:
-        """The embree scene of the mesh called ``key``: ``vertices`` (V, 3) and ``faces`` (F, 3), in their frame.
+        """The embree scene of the mesh called ``key``, in the mesh's own frame.
 
-        ``vertices`` and ``faces`` are read only when ``key`` has no scene yet.
+        Parameters
+        ----------
+        key : str
+            Names the mesh: equal keys must mean equal meshes.
+        vertices : (V, 3) float
+            Read only when ``key`` has no scene yet, as are ``faces``.
+        faces : (F, 3) int
+
+        Returns
+        -------
+        embreex.rtcore_scene.EmbreeScene
+            Its ``run(origins, directions)`` answers the first triangle each
+            float32 ray hits (-1: none).
         """
         scene = self._scenes.pop(key, None)
         if scene is None:

@@ -13,7 +13,7 @@ from test_samples_fixtures import TOP_DOWN_ACROSS_Y, grasp_row, scene_row, write
 from osgd.camera import KINECT_V2
 from osgd.contract.samples import decode_row
 from osgd.gripper import PANDA, UNIT_BOX_CORNERS
-from osgd.raycast import rotate_rows
+from osgd.raycast import EmbreeScenes, plane_hit_distances, rotate_rows
 from osgd.samples.boxes import SilhouetteCounter, visible_boxes
 from osgd.samples.noise import NoiseModel, add_noise
 from osgd.samples.pictures import show_sample
@@ -25,7 +25,7 @@ from osgd.samples.projection import (
     suppress,
     wrap_half_turn,
 )
-from osgd.samples.renderer import RenderObject, available_backends, make_renderer
+from osgd.samples.renderer import EmbreeRenderer, RenderObject, available_backends, cast_object, make_renderer
 from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload, split_of
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
 from osgd.stage import PlannedShard, WorkItem
@@ -114,9 +114,47 @@ def test_floor_depth_matches_the_plane_it_sees():
     expected = -pose.position[2] / world_z_per_depth
     assert np.all(rendering.mask == 0)
     np.testing.assert_allclose(rendering.depth, expected, atol=1e-5)
-    # Value for value the rays turned by rotate_rows, whose fixed order of operations every processor keeps.
-    exact = -pose.position[2] / rotate_rows(rays.reshape(-1, 3), pose.rotation)[:, 2]
-    np.testing.assert_array_equal(rendering.depth, exact.reshape(rendering.depth.shape))
+
+
+def test_floor_depth_is_the_rays_turned_by_rotate_rows_value_for_value_edges_included():
+    """The row and column terms give the bits of every pixel's ray turned alone (the fixed order of rotate_rows)."""
+    pose = draw_camera_pose(np.random.default_rng(1), np.array([0.05, 0.1, 0.0]), 0.8, 0.17, 0.26)
+    half = 0.2  # a floor square smaller than the view: its edges cross the image
+    depth = EmbreeRenderer(floor_half_size=half).render([], KINECT_V2, pose).depth
+    rows, columns = np.mgrid[0 : KINECT_V2.height, 0 : KINECT_V2.width]
+    rays = np.stack([(columns.reshape(-1) - KINECT_V2.cx) / KINECT_V2.fx,
+                     (rows.reshape(-1) - KINECT_V2.cy) / KINECT_V2.fy, np.ones(columns.size)], axis=1)
+    directions = rotate_rows(rays, pose.rotation)
+    distances = -pose.position[2] / directions[:, 2]
+    seen = (distances > 0) & np.all(np.abs(distances[:, None] * directions[:, :2]) <= half, axis=1)
+    expected = np.where(seen, distances, 0.0).reshape(depth.shape)
+    assert 0.1 < np.mean(expected > 0) < 0.9
+    np.testing.assert_array_equal(depth, expected)
+
+
+def test_object_casts_are_those_of_every_pixel_ray_turned_alone():
+    """cast_object's rays from row and column terms hit what rays turned one by one hit, at the same depths."""
+    scenes = EmbreeScenes()
+    rng = np.random.default_rng(4)
+    for model in fixture_models():
+        obj = RenderObject(model["model_id"], np.asarray(model["vertices"], dtype=np.float64).reshape(-1, 3),
+                           np.asarray(model["faces"], dtype=np.int64).reshape(-1, 3),
+                           np.array([*rng.uniform(-0.05, 0.05, 2), 0.02]), Rotation.random(random_state=rng).as_quat())
+        pose = draw_camera_pose(rng, np.zeros(3), 0.6, 0.17, 0.26)
+        hits = cast_object(scenes, obj, KINECT_V2, pose)
+        rotation = Rotation.from_quat(obj.quaternion).as_matrix()
+        rays = np.stack([(hits.columns - KINECT_V2.cx) / KINECT_V2.fx, (hits.rows - KINECT_V2.cy) / KINECT_V2.fy,
+                         np.ones(hits.rows.size)], axis=1)
+        local = rotate_rows(rays, rotation.T @ pose.rotation).astype(np.float32)
+        origin = rotate_rows((pose.position - obj.position)[None, :], rotation.T).astype(np.float32)
+        primitives = np.asarray(scenes.scene(obj.key, obj.vertices, obj.faces).run(
+            np.broadcast_to(origin, local.shape).copy(), local))
+        np.testing.assert_array_equal(hits.hit, primitives >= 0)
+        assert hits.hit.sum() > 100
+        triangles = rotate_rows(obj.vertices[obj.faces[primitives[hits.hit]]].reshape(-1, 3), rotation) + obj.position
+        expected = plane_hit_distances(np.broadcast_to(pose.position, (hits.hit.sum(), 3)),
+                                       rotate_rows(rays[hits.hit], pose.rotation), triangles.reshape(-1, 3, 3))
+        np.testing.assert_array_equal(hits.depth[hits.hit], expected)
 
 
 def test_camera_pose_looks_at_the_aim_point_from_the_given_height():

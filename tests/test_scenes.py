@@ -224,30 +224,42 @@ def test_stored_penetration_measures_overlap_of_the_stored_parts_and_with_the_fl
 
 
 def test_stored_penetration_in_the_reused_world_equals_a_fresh_world() -> None:
-    """Bodies kept from pile to pile (copies of one model included) overlap as bodies loaded anew."""
+    """Bodies kept from pile to pile (copies of one model included) overlap as bodies loaded anew, walls too."""
     models = fixture_models()
     rng = np.random.default_rng(3)
-    params = ScenesStageParams()
     answers = {"reused": [], "fresh": []}
-    for pile in range(6):
-        chosen = [models[int(index)] for index in rng.integers(len(models), size=2 + pile % 3)]
-        poses = [(np.array([*rng.uniform(-0.05, 0.05, 2), rng.uniform(0.0, 0.06)]),
-                  Rotation.random(random_state=rng).as_quat()) for _ in chosen]
-        answers["reused"].append(stored_penetration(chosen, poses, params))
-        with physics_client() as client:  # the pile loaded anew, as before issue #22
-            walls = build_world(client, params)
-            bodies = [create_object_body(client, model, position, quaternion, mass=0.0).body_id
-                      for model, (position, quaternion) in zip(chosen, poses, strict=True)]
-            deepest, pair = 0.0, (-1, -1)
-            for index, body in enumerate(bodies):
-                for other_index, other in [*((j, bodies[j]) for j in range(index + 1, len(bodies))),
-                                           *((-1, wall) for wall in walls)]:
-                    for point in pybullet.getClosestPoints(body, other, 0.0, physicsClientId=client):
-                        if -point[8] > deepest:
-                            deepest, pair = -point[8], (index, other_index)
-            answers["fresh"].append((deepest, pair))
+    for area_size in (1.0, 0.3, 1.0):  # the walls move in and back out: the world follows
+        params = ScenesStageParams(area_size=area_size)
+        # The 12 cm block lying along x, its centre 2 cm inside the wall's inner face, clear of the floor: only
+        # the wall of this area_size overlaps it, by 4 cm.
+        piles = [([models[2]], [(np.array([area_size / 2 - 0.02, 0.0, 0.1]), np.array([0.0, 0.0, 0.0, 1.0]))])]
+        for pile in range(5):
+            chosen = [models[int(index)] for index in rng.integers(len(models), size=2 + pile % 3)]
+            piles.append((chosen, [(np.array([*rng.uniform(-0.05, 0.05, 2), rng.uniform(0.0, 0.06)]),
+                                    Rotation.random(random_state=rng).as_quat()) for _ in chosen]))
+        for chosen, poses in piles:
+            answers["reused"].append(stored_penetration(chosen, poses, params))
+            answers["fresh"].append(_stored_penetration_in_a_new_world(chosen, poses, params))
     assert answers["reused"] == answers["fresh"]
-    assert sum(depth > 0 for depth, _ in answers["fresh"]) >= 3  # overlapping piles are among them
+    assert sum(depth > 0 for depth, _ in answers["fresh"]) >= 9  # overlapping piles are among them
+    for depth, pair in answers["fresh"][::6]:  # the block in the wall
+        assert pair == (0, -1) and 0.038 < depth < 0.043
+
+
+def _stored_penetration_in_a_new_world(models: list, poses: list, params: ScenesStageParams) -> tuple:
+    """:func:`stored_penetration` as before issue #22: the pile loaded anew in an empty world."""
+    with physics_client() as client:
+        walls = build_world(client, params)
+        bodies = [create_object_body(client, model, position, quaternion, mass=0.0).body_id
+                  for model, (position, quaternion) in zip(models, poses, strict=True)]
+        deepest, pair = 0.0, (-1, -1)
+        for index, body in enumerate(bodies):
+            for other_index, other in [*((j, bodies[j]) for j in range(index + 1, len(bodies))),
+                                       *((-1, wall) for wall in walls)]:
+                for point in pybullet.getClosestPoints(body, other, 0.0, physicsClientId=client):
+                    if -point[8] > deepest:
+                        deepest, pair = -point[8], (index, other_index)
+    return deepest, pair
 
 
 def test_piles_dropped_with_reduced_hulls_are_judged_on_the_stored_parts() -> None:

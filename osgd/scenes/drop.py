@@ -23,7 +23,6 @@ from one point).
 from __future__ import annotations
 
 import atexit
-import functools
 import json
 import logging
 import math
@@ -51,7 +50,7 @@ REJECTION_REASONS: tuple[str, ...] = (
 
 #: Columns of the ``models`` table the drop needs.
 MODEL_COLUMNS: tuple[str, ...] = (
-    "model_id", "name", "category", "convex_parts", "mass", "center_of_mass", "inertia", "friction",
+    "model_id", "name", "category", "convex_parts", "mass", "center_of_mass", "inertia", "friction", "decomposition",
 )
 
 _WALL_THICKNESS = 0.1
@@ -478,8 +477,7 @@ def stored_penetration(models: Sequence[Mapping[str, Any]], poses: Sequence[tupl
     """
     pybullet = pybullet_module()
     deepest, pair = 0.0, (-1, -1)
-    world = stored_parts_world(params.area_size, params.wall_height, tuple(params.floor_friction),
-                               params.maximal_coordinates)
+    world = stored_parts_world(params)
     objects = [{"model_id": model["model_id"], "position": position, "quaternion": quaternion}
                for model, (position, quaternion) in zip(models, poses, strict=True)]
     bodies = world.place({model["model_id"]: model for model in models}, objects)
@@ -495,23 +493,45 @@ def stored_penetration(models: Sequence[Mapping[str, Any]], poses: Sequence[tupl
     return deepest, pair
 
 
-@functools.lru_cache(maxsize=4)
-def stored_parts_world(area_size: float, wall_height: float, floor_friction: tuple[float, float, float],
-                       maximal_coordinates: bool) -> PileWorld:
-    """This process's world of the stored parts for :func:`stored_penetration`, per floor and walls.
+#: :func:`stored_parts_world`'s one world, by the floor and walls it holds.
+_STORED_PARTS_WORLD: dict[tuple[float, float, bool], PileWorld] = {}
+
+
+def close_stored_parts_world() -> None:
+    """Disconnect :func:`stored_parts_world`'s world (the next call makes a new one)."""
+    for world in _STORED_PARTS_WORLD.values():
+        world.close()
+    _STORED_PARTS_WORLD.clear()
+
+
+def stored_parts_world(params: ScenesStageParams) -> PileWorld:
+    """This process's world of the stored parts for :func:`stored_penetration`.
 
     A :class:`osgd.physics.PileWorld` with the floor and walls of
-    :func:`build_world` (the arguments are the parameters it reads): each
-    model's body of stored parts is made once per process and moved from
-    pile to pile, where each pile built its bodies anew before (a stored
-    part has a median of 310 corners: 5 ms per body, 15 % of the stacking
-    of the authors' models; issue #22). Disconnected at exit.
+    :func:`build_world`: each model's body of stored parts is made once per
+    process and moved from pile to pile, where each pile built its bodies
+    anew before (a stored part has a median of 310 corners: about 5 ms per
+    body, 15 % of the stacking of the authors' models; issue #22). One world
+    at a time: parameters that move the walls replace it; disconnected at
+    exit.
+
+    Parameters
+    ----------
+    params : ScenesStageParams
+        ``area_size``, ``wall_height`` and ``maximal_coordinates`` place and
+        make the walls (friction plays no part in closest points).
+
+    Returns
+    -------
+    PileWorld
     """
-    params = ScenesStageParams(area_size=area_size, wall_height=wall_height, floor_friction=floor_friction,
-                               maximal_coordinates=maximal_coordinates)
-    world = PileWorld(lambda client: build_world(client, params))
-    atexit.register(world.close)
-    return world
+    key = (float(params.area_size), float(params.wall_height), bool(params.maximal_coordinates))
+    if key not in _STORED_PARTS_WORLD:
+        close_stored_parts_world()
+        _STORED_PARTS_WORLD[key] = PileWorld(lambda client: build_world(client, params))
+        atexit.unregister(close_stored_parts_world)  # registered once, however often the world is replaced
+        atexit.register(close_stored_parts_world)
+    return _STORED_PARTS_WORLD[key]
 
 
 @dataclass

@@ -32,6 +32,18 @@ def worker_model_pool(store: ShardStore, keys: Sequence[str], item_id: str) -> M
     the same (issue #22: reading them for each item of 25 piles took 13 %
     of its time on the authors' 75 models).
 
+    Parameters
+    ----------
+    store : ShardStore
+    keys : sequence of str
+        The item's ``models`` shard keys.
+    item_id : str
+        Named in the error message.
+
+    Returns
+    -------
+    ModelPool
+
     Raises
     ------
     ValueError

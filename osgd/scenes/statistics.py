@@ -34,7 +34,7 @@ from osgd.store import ShardStore
 
 #: The ``models`` columns :func:`scene_statistics` reads: the bodies' and the meshes'.
 STATISTICS_COLUMNS = ("model_id", "vertices", "faces", "convex_parts", "mass", "center_of_mass", "inertia",
-                      "friction")
+                      "friction", "decomposition")
 
 #: Objects closer than this touch, metres (pybullet rests bodies a fraction of a millimetre apart or in).
 CONTACT_DISTANCE = 0.002

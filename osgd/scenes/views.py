@@ -121,6 +121,15 @@ def with_mesh_arrays(models: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[
     A row from ``Table.to_pylist()`` holds them as flat lists, and turning
     them into arrays for every object of every scene took a seventh of the
     stacking statistics of the authors' models (issue #22).
+
+    Parameters
+    ----------
+    models : mapping of model id to ``models`` row (dict)
+
+    Returns
+    -------
+    dict of model id to dict
+        Copies of the rows, ``vertices`` (V, 3) float64 and ``faces`` (F, 3) int64.
     """
     converted = {}
     for model_id, row in models.items():
@@ -197,7 +206,8 @@ def cast_view(meshes: Sequence[PosedMesh], axis: str = "top", pixel: float = 0.0
         # a third of the stacking statistics; issue #22); the distances below are on the world triangles.
         scene = view_scenes().scene(mesh.model_id, mesh.local_vertices, mesh.faces)
         local_origins = rotate_rows(origins - mesh.position, mesh.rotation.T).astype(np.float32)
-        local_directions = np.broadcast_to(mesh.rotation.T @ direction, origins.shape).astype(np.float32)
+        local_direction = rotate_rows(direction[None, :], mesh.rotation.T)[0]
+        local_directions = np.broadcast_to(local_direction, origins.shape).astype(np.float32)
         triangles = np.asarray(scene.run(local_origins, local_directions))
         hit = triangles >= 0
         # Distance along the ray to the hit triangle's plane.
