@@ -33,7 +33,7 @@ from osgd.scenes.drop import (
 from osgd.scenes.params import ScenesStageParams
 from osgd.scenes.pictures import show_scene
 from osgd.scenes.stage import ScenesStage
-from osgd.scenes.statistics import scene_statistics
+from osgd.scenes.statistics import CONTACT_DISTANCE, LYING_COSINE, scene_contacts, scene_statistics
 from osgd.scenes.views import posed_meshes
 from osgd.stage import PlannedShard, WorkItem, run_stage
 from osgd.store import ShardStore
@@ -370,6 +370,45 @@ def test_statistics_of_a_hand_made_stack() -> None:
     assert statistics.occlusion[0] == pytest.approx(1 / 3, abs=0.05)
     assert statistics.occlusion[1] == pytest.approx(0.0, abs=0.01)
     assert statistics.occlusion[2] == pytest.approx(0.0, abs=0.01)
+
+
+def test_contacts_in_the_reused_world_equal_a_fresh_world() -> None:
+    """scene_contacts' bodies kept from scene to scene count what bodies loaded anew with a floor count."""
+    models = {row["model_id"]: row for row in fixture_models()}
+    ids = sorted(models)
+    rng = np.random.default_rng(8)
+    counts = {"reused": [], "fresh": []}
+    for _ in range(8):
+        chosen = [ids[int(index)] for index in rng.integers(len(ids), size=int(rng.integers(2, 5)))]
+        scene = {"objects": [{"model_id": model_id, "category": "knife",
+                              "position": [*rng.uniform(-0.06, 0.06, 2).tolist(), float(rng.uniform(0.0, 0.08))],
+                              "quaternion": Rotation.random(random_state=rng).as_quat().tolist()}
+                             for model_id in chosen]}
+        counts["reused"].append(scene_contacts(scene, models))
+        counts["fresh"].append(_contacts_in_a_new_world(scene, models))
+    assert counts["reused"] == counts["fresh"]
+    assert any(touching for touching, _, _ in counts["fresh"]) and any(off for _, _, off in counts["fresh"])
+
+
+def _contacts_in_a_new_world(scene: dict, models: dict) -> tuple[int, int, int]:
+    """:func:`scene_contacts` as before issue #22: the scene loaded anew with a floor."""
+    with physics_client() as client:
+        floor = pybullet.createMultiBody(0, pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client),
+                                         physicsClientId=client)
+        bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
+                                     np.asarray(obj["quaternion"]), mass=0.0).body_id for obj in scene["objects"]]
+        touching, lying_on, on_floor = set(), set(), set()
+        for index, body in enumerate(bodies):
+            if pybullet.getClosestPoints(body, floor, CONTACT_DISTANCE, physicsClientId=client):
+                on_floor.add(index)
+            for other_index in range(index + 1, len(bodies)):
+                points = pybullet.getClosestPoints(body, bodies[other_index], CONTACT_DISTANCE, physicsClientId=client)
+                if points:
+                    touching.update((index, other_index))
+                    normal_z = np.mean([point[7][2] for point in points])
+                    if abs(normal_z) > LYING_COSINE:
+                        lying_on.add(index if normal_z > 0 else other_index)
+    return len(touching), len(lying_on), len(bodies) - len(on_floor)
 
 
 def test_summary_and_picture(built: tuple[ShardStore, list[dict]], tmp_path: Path) -> None:
