@@ -59,6 +59,35 @@ def rotate_rows(vectors: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     return vectors[:, 0:1] * rotation[:, 0] + vectors[:, 1:2] * rotation[:, 1] + vectors[:, 2:3] * rotation[:, 2]
 
 
+def rotate_grid_rays(x: np.ndarray, y: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`rotate_rows` of the rays ``(x[c], y[r], 1)`` of a pixel grid, value for value, from row and column terms.
+
+    Each component of a turned ray is ``x * R[i, 0] + y * R[i, 1] + R[i, 2]``,
+    the operations of :func:`rotate_rows` in its order (``1 * R[i, 2]`` is
+    ``R[i, 2]`` exactly), so the products are made once per column and once
+    per row and only the sums once per pixel (issue #22: turning every
+    pixel's ray took a seventh of the samples stage). The components come
+    apart, as contiguous (H, W) arrays: tests on them run several times
+    faster than on the columns of an (H, W, 3) array.
+
+    Parameters
+    ----------
+    x : (W,) float64
+        The rays' ``x`` per column (``(column - cx) / fx``).
+    y : (H,) float64
+        Their ``y`` per row.
+    rotation : (3, 3) float64
+
+    Returns
+    -------
+    tuple of three (H, W) float64
+        The turned rays' x, y and z components.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    x, y = np.asarray(x, dtype=np.float64)[None, :], np.asarray(y, dtype=np.float64)[:, None]
+    return tuple(x * rotation[axis, 0] + y * rotation[axis, 1] + rotation[axis, 2] for axis in range(3))
+
+
 def plane_hit_distances(origins: np.ndarray, directions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Ray parameter where each ray meets the plane of the triangle it hit.
 

@@ -51,7 +51,7 @@ from scipy.spatial.transform import Rotation
 from osgd.camera import CameraIntrinsics
 from osgd.physics import pybullet_module
 from osgd.quiet import native_output_hidden
-from osgd.raycast import EmbreeScenes, plane_hit_distances, rotate_rows
+from osgd.raycast import EmbreeScenes, plane_hit_distances, rotate_grid_rays, rotate_rows
 from osgd.samples.viewpoint import CameraPose
 
 log = logging.getLogger(__name__)
@@ -220,13 +220,10 @@ def cast_object(scenes: EmbreeScenes, obj: RenderObject, intrinsics: CameraIntri
     high = np.ceil(pixels.max(axis=0)).astype(np.int64)
     row_values, column_values = np.arange(low[1], high[1] + 1), np.arange(low[0], high[0] + 1)
     rows, columns = np.repeat(row_values, len(column_values)), np.tile(column_values, len(row_values))
-    # A camera ray is (x, y, 1) with x per column and y per row, so each of its components in the mesh's frame
-    # is a row term plus a column term: rotate_rows' operations in its order, on (H, 1, 3) and (1, W, 3).
     ray_x = (column_values - intrinsics.cx) / intrinsics.fx
     ray_y = (row_values - intrinsics.cy) / intrinsics.fy
     turn = rotation.T @ pose.rotation  # camera frame to the mesh's, in one turn
-    local = (ray_x[None, :, None] * turn[:, 0] + ray_y[:, None, None] * turn[:, 1]) + turn[:, 2]
-    local = local.reshape(-1, 3).astype(np.float32)
+    local = np.stack(rotate_grid_rays(ray_x, ray_y, turn), axis=-1, dtype=np.float32).reshape(-1, 3)
     origin = rotate_rows((pose.position - position)[None, :], rotation.T).astype(np.float32)
     primitives = np.asarray(scene.run(np.broadcast_to(origin, local.shape).copy(), local))  # -1 where missed
     hit = primitives >= 0
@@ -286,22 +283,16 @@ class EmbreeRenderer:
         """Depth of the floor square (``z = 0``, centred under the camera) per pixel, 0 where it is not seen.
 
         A ray ``c + t d`` (``d`` with camera-frame z 1, so ``t`` is the depth)
-        meets the plane at ``t = -c_z / d_z``. The rays of a row share their
-        ``y`` and those of a column their ``x``, so each world component of
-        ``d`` is an (H, 1) plus a (1, W) term: the operations of
-        :func:`osgd.raycast.rotate_rows` on the rays ``(x, y, 1)``, in the
-        same order, at a fraction of the memory traffic (issue #22).
+        meets the plane at ``t = -c_z / d_z``.
         """
-        x = ((np.arange(intrinsics.width) - intrinsics.cx) / intrinsics.fx)[None, :]
-        y = ((np.arange(intrinsics.height) - intrinsics.cy) / intrinsics.fy)[:, None]
-        rotation = np.asarray(pose.rotation, dtype=np.float64)
-        direction_x, direction_y, direction_z = (x * rotation[axis, 0] + y * rotation[axis, 1] + rotation[axis, 2]
-                                                 for axis in range(3))
+        x = (np.arange(intrinsics.width) - intrinsics.cx) / intrinsics.fx
+        y = (np.arange(intrinsics.height) - intrinsics.cy) / intrinsics.fy
+        direction_x, direction_y, direction_z = rotate_grid_rays(x, y, pose.rotation)
         height = float(pose.position[2])
         with np.errstate(divide="ignore", invalid="ignore"):
             distances = -height / direction_z
         seen = ((distances > 0) & (np.abs(distances * direction_x) <= self.floor_half_size)
-                & (np.abs(distances * direction_y) <= self.floor_half_size))
+                & (np.abs(distances * direction_y) <= self.floor_half_size))  # offsets from the point under the camera
         return np.where(seen, distances, 0.0).reshape(-1)
 
 

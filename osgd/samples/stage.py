@@ -56,7 +56,7 @@ from osgd.samples.projection import (
 )
 from osgd.samples.renderer import BACKENDS, Renderer, Rendering, RenderObject, hull_vertices, make_renderer
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
-from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_once_per_worker
 from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
@@ -497,21 +497,14 @@ def load_stable_grasps(
     return {model_id: grasp_set_from_rows(rows) for model_id, rows in rows_by_model.items()}
 
 
-#: :func:`worker_model_inputs`' last result, by data dir and shard keys.
-_WORKER_MODEL_INPUTS: dict[tuple[str, ...], tuple[dict[str, dict[str, Any]], dict[str, GraspSet]]] = {}
-
-
 def worker_model_inputs(
     store: ShardStore, inputs: Mapping[str, Sequence[str]]
 ) -> tuple[dict[str, dict[str, Any]], dict[str, GraspSet]]:
     """Every model's row (:func:`osgd.models.rows.model_rows`) and stable grasps, read once per worker.
 
     Every samples item of a pipeline names the same models, grasps and
-    checks shards, and a shard key stands for its content, so a worker
-    reads and converts them for its first item and reuses them for the
-    rest, while the data dir and the keys stay the same (issue #22:
-    reading them for each item took 14 % of its time on the authors'
-    models).
+    checks shards (:func:`osgd.stage.read_once_per_worker`; reading them
+    for each item took 14 % of its time on the authors' models, issue #22).
 
     Parameters
     ----------
@@ -524,12 +517,12 @@ def worker_model_inputs(
     models : dict of model id to dict
     stable_grasps : dict of model id to GraspSet
     """
-    cache_key = (str(store.root), *(",".join(inputs.get(table, ())) for table in ("models", "grasps", "checks")))
-    if cache_key not in _WORKER_MODEL_INPUTS:
-        _WORKER_MODEL_INPUTS.clear()
+    def read() -> tuple[dict[str, dict[str, Any]], dict[str, GraspSet]]:
         rows = model_rows(store.read_many("models", list(inputs.get("models", ())), columns=list(BODY_COLUMNS)))
-        _WORKER_MODEL_INPUTS[cache_key] = rows, load_stable_grasps(store, inputs, set(rows))
-    return _WORKER_MODEL_INPUTS[cache_key]
+        return rows, load_stable_grasps(store, inputs, set(rows))
+
+    keys = [",".join(inputs.get(table, ())) for table in ("models", "grasps", "checks")]
+    return read_once_per_worker("samples: models and stable grasps", store, keys, read)
 
 
 class SamplesStage(Stage):

@@ -16,21 +16,16 @@ from osgd.contract.schemas import SCENES
 from osgd.contract.shards import ShardRecord
 from osgd.scenes.drop import MODEL_COLUMNS, ModelPool, generate_scene
 from osgd.scenes.params import ScenesStageParams
-from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_once_per_worker
 from osgd.store import ShardStore
-
-#: :func:`worker_model_pool`'s last pool, by data dir and models shard keys.
-_WORKER_MODEL_POOL: dict[tuple[str, ...], ModelPool] = {}
 
 
 def worker_model_pool(store: ShardStore, keys: Sequence[str], item_id: str) -> ModelPool:
     """The :class:`ModelPool` of the models shards ``keys``, read once per worker.
 
-    Every scenes item of a pipeline names the same models shards, and a
-    shard key stands for its content, so a worker reads and converts them
-    for its first item and keeps them while the data dir and the keys stay
-    the same (issue #22: reading them for each item of 25 piles took 13 %
-    of its time on the authors' 75 models).
+    Every scenes item of a pipeline names the same models shards
+    (:func:`osgd.stage.read_once_per_worker`; reading them for each item of
+    25 piles took 13 % of its time on the authors' 75 models, issue #22).
 
     Parameters
     ----------
@@ -47,17 +42,16 @@ def worker_model_pool(store: ShardStore, keys: Sequence[str], item_id: str) -> M
     Raises
     ------
     ValueError
-        If the models table has no rows (``item_id`` names the item in the message).
+        If the models table has no rows.
     """
-    cache_key = (str(store.root), *keys)
-    if cache_key not in _WORKER_MODEL_POOL:
+    def read() -> ModelPool:
         models = store.read_many("models", list(keys), MODEL_COLUMNS)
         if models.num_rows == 0:
             raise ValueError(f"{item_id}: the models table ({len(keys)} shard(s) under {store.root / 'models'}) "
                              "has no rows, so no scene can be drawn")
-        _WORKER_MODEL_POOL.clear()
-        _WORKER_MODEL_POOL[cache_key] = ModelPool(models.to_pylist())
-    return _WORKER_MODEL_POOL[cache_key]
+        return ModelPool(models.to_pylist())
+
+    return read_once_per_worker("scenes: model pool", store, keys, read)
 
 
 class ScenesStage(Stage):
