@@ -471,7 +471,8 @@ class PileWorld:
         self._make_fixtures = fixtures
         self.fixtures: list[int] = []
         self._bodies: dict[str, list[ObjectBody]] = {}
-        self.gripper_bodies: dict[tuple[Gripper, float], int] = {}
+        #: Gripper bodies by gripper, then by opening (metres).
+        self.gripper_bodies: dict[Gripper, dict[float, int]] = {}
         self._hull_points: dict[str, np.ndarray] = {}
 
     def _connected(self) -> int:

@@ -52,7 +52,7 @@ class PileCollider:
     tolerance : float
         Penetration allowed, metres.
     gripper_bodies : dict, optional
-        Gripper bodies by (gripper, opening), kept by a :class:`PileWorld`.
+        Gripper bodies by gripper, then by opening, kept by a :class:`PileWorld`.
     bounds : (N, 2, 3) float, optional
         Each object's axis-aligned box in the world (min, max corner), m: the
         pybullet query is made only for objects whose box comes within
@@ -60,13 +60,14 @@ class PileCollider:
     """
 
     def __init__(self, client: int, bodies: list[int], gripper: Gripper, tolerance: float,
-                 gripper_bodies: dict[tuple[Gripper, float], int] | None = None,
+                 gripper_bodies: dict[Gripper, dict[float, int]] | None = None,
                  bounds: np.ndarray | None = None) -> None:
         self.client = client
         self.bodies = bodies
         self.gripper = gripper
         self.tolerance = tolerance
-        self._grippers = {} if gripper_bodies is None else gripper_bodies
+        # This gripper's bodies by opening (the gripper is hashed once, not per query).
+        self._grippers = ({} if gripper_bodies is None else gripper_bodies).setdefault(gripper, {})
         self.bounds = bounds
         #: Gripper bodies moved into this pile, to be parked again when it is done.
         self.moved_grippers: set[int] = set()
@@ -141,7 +142,7 @@ class PileCollider:
         so bodies are kept for the life of the world.)
         """
         pybullet = pybullet_module()
-        body = self._grippers.get((self.gripper, opening))
+        body = self._grippers.get(opening)
         if body is None:
             boxes = self.gripper.boxes(opening)
             shape = pybullet.createCollisionShapeArray(
@@ -151,7 +152,7 @@ class PileCollider:
                 physicsClientId=self.client,
             )
             body = pybullet.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=shape, physicsClientId=self.client)
-            self._grippers[self.gripper, opening] = body
+            self._grippers[opening] = body
         return body
 
 @functools.cache

@@ -37,7 +37,7 @@ from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from osgd.camera import KINECT_V2, CameraIntrinsics
-from osgd.contract.encoding import encode_depth, encode_mask
+from osgd.contract.encoding import CLEAN_DEPTH_PNG_PARAMS, encode_depth, encode_mask
 from osgd.contract.schemas import SAMPLES
 from osgd.contract.shards import ShardRecord
 from osgd.gripper import PANDA, Gripper
@@ -277,7 +277,7 @@ def render_sample(
         "height": intrinsics.height,
         "width": intrinsics.width,
         "depth": encode_depth(depth),
-        "depth_clean": encode_depth(depth_clean),
+        "depth_clean": encode_depth(depth_clean, CLEAN_DEPTH_PNG_PARAMS),
         "mask": encode_mask(mask),
         "intrinsics": intrinsics.as_array().tolist(),
         "camera_position": pose.position.tolist(),
@@ -530,7 +530,9 @@ class SamplesStage(Stage):
 
     name = "samples"
     table = "samples"
-    version = 5  # 4: the shards record their vocabulary (osgd.vocabulary); 5: silhouettes in the mesh frame (issue #22)
+    # 4: the shards record their vocabulary (osgd.vocabulary); 5: silhouettes in the mesh frame (issue #22);
+    # 6: PNG writer settings per image kind (osgd.contract.encoding; the same decoded images, other bytes)
+    version = 6
     inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."
