@@ -2,20 +2,28 @@
 
 from __future__ import annotations
 
+import json
 import struct
 import zlib
+from collections.abc import Callable
+from pathlib import Path
 
+import cv2
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from osgd.contract.encoding import (
     CLEAN_DEPTH_PNG_PARAMS,
     DEPTH_PNG_PARAMS,
+    MASK_PNG_PARAMS,
     decode_depth,
     decode_mask,
     encode_depth,
     encode_mask,
 )
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: PNG's per-row filter types (PNG specification, section 9.2).
 FILTER_NONE, FILTER_UP = 0, 2
@@ -77,8 +85,36 @@ def test_the_same_image_gives_the_same_bytes() -> None:
     (lambda: encode_depth(noisy_depth(), CLEAN_DEPTH_PNG_PARAMS), FILTER_NONE, 2),
     (lambda: encode_mask((noisy_depth() < 0.59).astype(np.uint8)), FILTER_NONE, 1),
 ])
-def test_each_image_kind_is_written_with_its_row_filter(encode, row_filter: int, pixel: int) -> None:
+def test_each_image_kind_is_written_with_its_row_filter(encode: Callable[[], bytes], row_filter: int,
+                                                        pixel: int) -> None:
     """The writer applies the settings (an OpenCV without the row-filter key would pick filters per row)."""
     width, bytes_per_pixel, rows = png_rows(encode())
     assert (width, bytes_per_pixel) == (64, pixel)
     assert {row[0] for row in rows} == {row_filter}
+
+
+@pytest.mark.parametrize(("params", "image"), [
+    (DEPTH_PNG_PARAMS, lambda: np.rint(noisy_depth() * 1000).astype(np.uint16)),
+    (MASK_PNG_PARAMS, lambda: (noisy_depth() < 0.59).astype(np.uint8)),
+])
+def test_the_zlib_strategy_takes_effect(params: tuple[int, ...], image: Callable[[], np.ndarray]) -> None:
+    """OpenCV resets the strategy when it reads the compression level, so the level must come first."""
+    assert params.index(cv2.IMWRITE_PNG_COMPRESSION) < params.index(cv2.IMWRITE_PNG_STRATEGY)
+    strategy = params.index(cv2.IMWRITE_PNG_STRATEGY)
+    without = params[:strategy] + params[strategy + 2:]
+    with_strategy, without_strategy = (cv2.imencode(".png", image(), list(setting))[1].tobytes()
+                                       for setting in (params, without))
+    assert with_strategy != without_strategy
+
+
+def test_the_committed_golden_samples_carry_each_kind_s_row_filter() -> None:
+    """The samples stage writes each column with its kind's settings (the golden record, rebuilt by the stage)."""
+    manifest = json.loads((ROOT / "data" / "manifests" / "golden.json").read_text())
+    expected = {"depth": FILTER_UP, "depth_clean": FILTER_NONE, "mask": FILTER_NONE}
+    shards = manifest["stages"]["samples"]["shards"]
+    assert shards
+    for shard in shards:
+        table = pq.read_table(ROOT / "data" / "golden" / "samples" / f"{shard['key']}.parquet", columns=list(expected))
+        for column, row_filter in expected.items():
+            for data in table[column].to_pylist():
+                assert {row[0] for row in png_rows(data)[2]} == {row_filter}, column
