@@ -33,7 +33,7 @@ from osgd.scenes.drop import (
 from osgd.scenes.params import ScenesStageParams
 from osgd.scenes.pictures import show_scene
 from osgd.scenes.stage import ScenesStage
-from osgd.scenes.statistics import CONTACT_DISTANCE, LYING_COSINE, scene_contacts, scene_statistics
+from osgd.scenes.statistics import count_contacts, scene_contacts, scene_statistics
 from osgd.scenes.views import posed_meshes
 from osgd.stage import PlannedShard, WorkItem, run_stage
 from osgd.store import ShardStore
@@ -391,24 +391,13 @@ def test_contacts_in_the_reused_world_equal_a_fresh_world() -> None:
 
 
 def _contacts_in_a_new_world(scene: dict, models: dict) -> tuple[int, int, int]:
-    """:func:`scene_contacts` as before issue #22: the scene loaded anew with a floor."""
+    """:func:`scene_contacts` as before issue #22: the scene loaded anew with a floor, in a new client."""
     with physics_client() as client:
         floor = pybullet.createMultiBody(0, pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client),
                                          physicsClientId=client)
         bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
                                      np.asarray(obj["quaternion"]), mass=0.0).body_id for obj in scene["objects"]]
-        touching, lying_on, on_floor = set(), set(), set()
-        for index, body in enumerate(bodies):
-            if pybullet.getClosestPoints(body, floor, CONTACT_DISTANCE, physicsClientId=client):
-                on_floor.add(index)
-            for other_index in range(index + 1, len(bodies)):
-                points = pybullet.getClosestPoints(body, bodies[other_index], CONTACT_DISTANCE, physicsClientId=client)
-                if points:
-                    touching.update((index, other_index))
-                    normal_z = np.mean([point[7][2] for point in points])
-                    if abs(normal_z) > LYING_COSINE:
-                        lying_on.add(index if normal_z > 0 else other_index)
-    return len(touching), len(lying_on), len(bodies) - len(on_floor)
+        return count_contacts(client, floor, bodies)
 
 
 def test_summary_and_picture(built: tuple[ShardStore, list[dict]], tmp_path: Path) -> None:

@@ -102,28 +102,49 @@ def scene_contacts(scene: Mapping[str, Any], models: Mapping[str, Mapping[str, A
     -------
     touching, lying_on, off_floor : int
     """
-    pybullet = pybullet_module()
     world = contacts_world()
     bodies = world.place(models, scene["objects"])
     try:
-        floor, client = world.fixtures[0], world.client
-        touching, lying_on, on_floor = set(), set(), set()
-        for index, body in enumerate(bodies):
-            if pybullet.getClosestPoints(body, floor, contact_distance, physicsClientId=client):
-                on_floor.add(index)
-            for other_index in range(index + 1, len(bodies)):
-                points = pybullet.getClosestPoints(body, bodies[other_index], contact_distance, physicsClientId=client)
-                if not points:
-                    continue
-                touching.update((index, other_index))
-                # contactNormalOnB points from the other body (B) towards this one (A).
-                normal_z = np.mean([point[7][2] for point in points])
-                if normal_z > LYING_COSINE:
-                    lying_on.add(index)
-                elif normal_z < -LYING_COSINE:
-                    lying_on.add(other_index)
+        return count_contacts(world.client, world.fixtures[0], bodies, contact_distance)
     finally:
         world.park(bodies)
+
+
+def count_contacts(client: int, floor: int, bodies: list[int],
+                   contact_distance: float = CONTACT_DISTANCE) -> tuple[int, int, int]:
+    """Count touching, lying-on and off-the-floor bodies of a pile loaded in ``client``.
+
+    Parameters
+    ----------
+    client : int
+        pybullet client holding the pile and the floor.
+    floor : int
+        The floor's body.
+    bodies : list of int
+        The pile's bodies, in scene order.
+    contact_distance : float
+        Gap under which two bodies count as touching, metres.
+
+    Returns
+    -------
+    touching, lying_on, off_floor : int
+    """
+    pybullet = pybullet_module()
+    touching, lying_on, on_floor = set(), set(), set()
+    for index, body in enumerate(bodies):
+        if pybullet.getClosestPoints(body, floor, contact_distance, physicsClientId=client):
+            on_floor.add(index)
+        for other_index in range(index + 1, len(bodies)):
+            points = pybullet.getClosestPoints(body, bodies[other_index], contact_distance, physicsClientId=client)
+            if not points:
+                continue
+            touching.update((index, other_index))
+            # contactNormalOnB points from the other body (B) towards this one (A).
+            normal_z = np.mean([point[7][2] for point in points])
+            if normal_z > LYING_COSINE:
+                lying_on.add(index)
+            elif normal_z < -LYING_COSINE:
+                lying_on.add(other_index)
     return len(touching), len(lying_on), len(bodies) - len(on_floor)
 
 
