@@ -20,7 +20,7 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -31,6 +31,7 @@ from rich.text import Text
 
 from osgd.config import ConfigError, PipelineConfig, config_to_toml
 from osgd.contract.files import is_uri
+from osgd.contract.process_exit import exit_process
 from osgd.errors import describe
 from osgd.executor import BACKENDS, Executor, ExecutorError, SerialExecutor, make_executor
 from osgd.pipeline import (
@@ -453,8 +454,21 @@ def _warn_if_built_with_other_hashes(executor: Executor) -> None:
                     "set PYTHONHASHSEED=0 to build them with the workers' hashes")
 
 
-def run() -> None:
-    """Console-script entry point: an unexpected error is one line, its traceback only with ``--debug``."""
+def run() -> NoReturn:
+    """Console-script entry point: an unexpected error is one line, its traceback only with ``--debug``.
+
+    The process ends through :func:`osgd.contract.process_exit.exit_process`, without
+    the native libraries' teardown.
+    """
+    try:
+        _run_app()
+    except SystemExit as end:
+        exit_process(end.code)
+    exit_process(0)
+
+
+def _run_app() -> None:
+    """The CLI, its end a :class:`SystemExit` (Click's standalone mode), an unexpected error one line."""
     _seed_worker_hashes()
     try:
         app()

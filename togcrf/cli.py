@@ -7,9 +7,11 @@ through a ``register(app)`` function, so this file stays a table of contents.
 from __future__ import annotations
 
 import logging
+from typing import NoReturn
 
 import typer
 
+from osgd.contract.process_exit import exit_process
 from togcrf import curves, evaluate, figures, predict, reproduce, train
 from togcrf.robot import cli as robot_cli
 
@@ -36,6 +38,11 @@ for _module in COMMAND_MODULES:
     _module.register(app)
 
 
-def run() -> None:
-    """Console-script entry point."""
-    app()
+def run() -> NoReturn:
+    """Console-script entry point; the process ends without the native libraries' teardown
+    (:func:`osgd.contract.process_exit.exit_process`)."""
+    try:
+        app()
+    except SystemExit as end:
+        exit_process(end.code)
+    exit_process(0)

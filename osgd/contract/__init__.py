@@ -10,6 +10,8 @@ numpy, pyarrow and OpenCV (``tests/test_contract.py`` enforces it).
 - :mod:`osgd.contract.files`: a data dir's files, in a folder or an object store;
 - :mod:`osgd.contract.shards`: find, verify and read finished shards;
 - :mod:`osgd.contract.samples`: the training samples as numpy arrays.
+- :mod:`osgd.contract.process_exit`: how a command that has read or written
+  shards ends its process (pyarrow's threads outlive the interpreter).
 
 The generator writes through the same definitions, so a shard and its
 reader cannot disagree.
