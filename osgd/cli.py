@@ -31,7 +31,7 @@ from rich.text import Text
 
 from osgd.config import ConfigError, PipelineConfig, config_to_toml
 from osgd.contract.files import is_uri
-from osgd.contract.process_exit import exit_process
+from osgd.contract.process_exit import run_then_exit
 from osgd.errors import describe
 from osgd.executor import BACKENDS, Executor, ExecutorError, SerialExecutor, make_executor
 from osgd.pipeline import (
@@ -457,14 +457,10 @@ def _warn_if_built_with_other_hashes(executor: Executor) -> None:
 def run() -> NoReturn:
     """Console-script entry point: an unexpected error is one line, its traceback only with ``--debug``.
 
-    The process ends through :func:`osgd.contract.process_exit.exit_process`, without
+    The process ends through :func:`osgd.contract.process_exit.run_then_exit`, without
     the native libraries' teardown.
     """
-    try:
-        _run_app()
-    except SystemExit as end:
-        exit_process(end.code)
-    exit_process(0)
+    run_then_exit(_run_app)
 
 
 def _run_app() -> None:

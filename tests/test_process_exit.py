@@ -59,3 +59,17 @@ def test_both_commands_end_with_clicks_status(cli: str, arguments: list[str], st
                             cwd=tmp_path, check=False)
     assert result.returncode == status, result.stderr
     assert (result.stdout if status == 0 else result.stderr).strip(), "the output was lost on the way out"
+
+
+def test_a_command_s_system_exit_sets_the_status_and_other_errors_keep_their_traceback(tmp_path: Path) -> None:
+    ended = _python("""
+        import sys
+        from osgd.contract.process_exit import run_then_exit
+        run_then_exit(lambda: sys.exit(4))
+    """, tmp_path)
+    returned = _python("from osgd.contract.process_exit import run_then_exit; run_then_exit(lambda: print('done'))",
+                       tmp_path)
+    raised = _python("from osgd.contract.process_exit import run_then_exit; run_then_exit(lambda: 1 / 0)", tmp_path)
+    assert ended.returncode == 4
+    assert (returned.returncode, returned.stdout) == (0, "done\n")
+    assert raised.returncode == 1 and "ZeroDivisionError" in raised.stderr and "Traceback" in raised.stderr

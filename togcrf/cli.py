@@ -11,7 +11,7 @@ from typing import NoReturn
 
 import typer
 
-from osgd.contract.process_exit import exit_process
+from osgd.contract.process_exit import run_then_exit
 from togcrf import curves, evaluate, figures, predict, reproduce, train
 from togcrf.robot import cli as robot_cli
 
@@ -40,9 +40,5 @@ for _module in COMMAND_MODULES:
 
 def run() -> NoReturn:
     """Console-script entry point; the process ends without the native libraries' teardown
-    (:func:`osgd.contract.process_exit.exit_process`)."""
-    try:
-        app()
-    except SystemExit as end:
-        exit_process(end.code)
-    exit_process(0)
+    (:func:`osgd.contract.process_exit.run_then_exit`)."""
+    run_then_exit(app)

@@ -31,18 +31,15 @@ import gc
 import os
 import sys
 import threading
+from collections.abc import Callable
 from typing import NoReturn
 
 
 def exit_status(code: object) -> int:
-    """The process status ``sys.exit(code)`` gives: None 0, an int itself, anything else 1 (printed)."""
+    """The process status ``sys.exit(code)`` gives: None 0, an int itself, anything else (a message) 1."""
     if code is None:
         return 0
-    if isinstance(code, int):
-        return code
-    with contextlib.suppress(OSError, ValueError):
-        print(code, file=sys.stderr)
-    return 1
+    return code if isinstance(code, int) else 1
 
 
 def exit_process(code: object = 0) -> NoReturn:
@@ -55,6 +52,9 @@ def exit_process(code: object = 0) -> NoReturn:
         status), or a message (printed to stderr; status 1).
     """
     status = exit_status(code)
+    if code is not None and not isinstance(code, int):
+        with contextlib.suppress(OSError, ValueError):
+            print(code, file=sys.stderr)
     main = threading.main_thread()
     for thread in threading.enumerate():
         if thread is not main and not thread.daemon:
@@ -65,3 +65,15 @@ def exit_process(code: object = 0) -> NoReturn:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             stream.flush()
     os._exit(status)
+
+
+def run_then_exit(command: Callable[[], object]) -> NoReturn:
+    """Run a console command (a Click app ends in :class:`SystemExit`), then :func:`exit_process` with its status.
+
+    Any other exception propagates, with its traceback, through Python's own exit.
+    """
+    try:
+        command()
+    except SystemExit as end:
+        exit_process(end.code)
+    exit_process(0)
