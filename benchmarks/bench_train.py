@@ -10,7 +10,10 @@ invocation, so the ratio compares like with like on one machine:
   grasp blocks, 16 px grasp anchors and a scale jitter of +-10 % (images up
   to 211 px, padded to 224);
 - ``recipe``: ``togcrf.reproduce.CPU_SCALE`` (its model options, batch size,
-  image size, scale jitter and optimiser).
+  image size, scale jitter and optimiser);
+- ``recipe-tv-roialign``: the recipe with torchvision's RoIAlign backward
+  instead of :mod:`togcrf.roi_align`'s sparse one, which is what the recipe
+  ran before 2026-11-27 (``before`` runs torchvision's too, as at 4bf0b66).
 
 Each configuration steps its own optimiser, built as ``togcrf train`` builds
 it (``togcrf.train.build_optimizer``): SGD with momentum before the recipe,
@@ -40,6 +43,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+#: Distinct batches a child cycles through (their image sizes differ with the scale jitter).
+BATCHES = 4
+
 #: Model options of the training before the recipe (the defaults of commit 4bf0b66).
 BEFORE_OPTIONS = {"fpn_norm": False, "grasp_trunk_norm": False, "fpn_min_stride": 4, "fpn_channels": 256,
                   "rpn_anchor_sizes": [16, 32, 64, 128, 256], "box_batch_per_image": 256, "box_head_size": 1024,
@@ -51,13 +57,25 @@ def configurations() -> dict[str, dict]:
     """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down", "optimizer", "lr"}."""
     from togcrf.reproduce import CPU_SCALE  # noqa: PLC0415
 
+    recipe = {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
+              "image_size": CPU_SCALE.image_size, "jitter_up": 0.0, "jitter_down": CPU_SCALE.scale_jitter,
+              "optimizer": CPU_SCALE.optimizer, "lr": CPU_SCALE.lr, "torchvision_roi_align": False}
     return {
         "before": {"model_options": BEFORE_OPTIONS, "batch_size": 2, "image_size": 192, "jitter_up": 0.1,
-                   "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01},
-        "recipe": {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
-                   "image_size": CPU_SCALE.image_size, "jitter_up": 0.0, "jitter_down": CPU_SCALE.scale_jitter,
-                   "optimizer": CPU_SCALE.optimizer, "lr": CPU_SCALE.lr},
+                   "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01, "torchvision_roi_align": True},
+        "recipe-tv-roialign": {**recipe, "torchvision_roi_align": True},
+        "recipe": recipe,
     }
+
+
+def use_torchvision_roi_align(model: object) -> None:
+    """Pool the model's RoIs with torchvision's own MultiScaleRoIAlign (its CPU backward), same levels."""
+    from torchvision.ops import MultiScaleRoIAlign  # noqa: PLC0415
+
+    pool = model.roi_heads.box_roi_pool
+    plain = MultiScaleRoIAlign(pool.featmap_names, pool.output_size, pool.sampling_ratio)
+    plain.scales, plain.map_levels = pool.scales, pool.map_levels
+    model.roi_heads.box_roi_pool = plain
 
 
 def _batches(arguments: argparse.Namespace, setting: dict, count: int) -> list:
@@ -111,9 +129,11 @@ def child(arguments: argparse.Namespace) -> None:
     from togcrf.train import TrainConfig, build_optimizer  # noqa: PLC0415
 
     setting = configurations()[arguments.configuration]
-    batches = _batches(arguments, setting, 4)
+    batches = _batches(arguments, setting, BATCHES)
     torch.manual_seed(0)
     model = build_model("tog", arguments.backbone, **setting["model_options"])
+    if setting["torchvision_roi_align"]:
+        use_torchvision_roi_align(model)
     model.train()
     optimizer = build_optimizer(model, TrainConfig(data="", out="", optimizer=setting["optimizer"], lr=setting["lr"]))
 
@@ -147,8 +167,11 @@ def main() -> None:
     parser.add_argument("--data", help="Data dir with samples shards (default: synthetic samples).")
     parser.add_argument("--pipeline", default=None, help="Pipeline whose samples to read from --data.")
     parser.add_argument("--backbone", default="resnet18")
-    parser.add_argument("--steps", type=int, default=6)
-    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=16, help="timed steps")
+    parser.add_argument("--warmup", type=int, default=12,
+                        help="untimed steps first: a fresh model's first steps are slower than the rest of a run "
+                        "(the configuration before the recipe: 2.5-2.9 s for its first 6 steps on a 2-core EPYC, then "
+                        "1.0-1.4 s), and a training run is nearly all later steps")
     parser.add_argument("--configuration", help=argparse.SUPPRESS)
     arguments = parser.parse_args()
     if arguments.configuration:
@@ -156,7 +179,7 @@ def main() -> None:
         return
     print(f"TOG training on the CPU, {arguments.backbone}, {arguments.steps} timed steps after "
           f"{arguments.warmup}, {'samples of ' + arguments.data if arguments.data else 'synthetic samples'}")
-    print(f"{'configuration':<14} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9}")
+    print(f"{'configuration':<20} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9}")
     results = {}
     for name in configurations():
         command = [sys.executable, __file__, "--configuration", name, "--backbone", arguments.backbone,
@@ -165,15 +188,16 @@ def main() -> None:
             command += ["--data", arguments.data] + (["--pipeline", arguments.pipeline] if arguments.pipeline else [])
         completed = subprocess.run(command, capture_output=True, text=True, check=False, cwd=ROOT)
         if completed.returncode != 0:
-            print(f"{name:<14} failed: {completed.stderr.strip().splitlines()[-1:]}")
+            print(f"{name:<20} failed: {completed.stderr.strip().splitlines()[-1:]}")
             continue
         result = results[name] = json.loads(completed.stdout.strip().splitlines()[-1])
-        print(f"{name:<14} {result['batch_size']:>5} {result['seconds_per_step']:>8.2f} "
+        print(f"{name:<20} {result['batch_size']:>5} {result['seconds_per_step']:>8.2f} "
               f"{result['images_per_second']:>8.2f} {result['peak_rss_mib']:>13.0f} "
               f"{result['parameters_millions']:>9.1f}")
-    if len(results) == 2:
-        ratio = results["recipe"]["images_per_second"] / results["before"]["images_per_second"]
-        print(f"recipe / before: {ratio:.2f}x images per second")
+    for baseline in ("before", "recipe-tv-roialign"):
+        if "recipe" in results and baseline in results:
+            ratio = results["recipe"]["images_per_second"] / results[baseline]["images_per_second"]
+            print(f"recipe / {baseline}: {ratio:.2f}x images per second")
 
 
 if __name__ == "__main__":

@@ -54,7 +54,7 @@ from torchvision.models.detection.faster_rcnn import FastRCNNPredictor, TwoMLPHe
 from torchvision.models.detection.image_list import ImageList
 from torchvision.models.detection.roi_heads import RoIHeads, fastrcnn_loss
 from torchvision.models.detection.rpn import RegionProposalNetwork, RPNHead
-from torchvision.ops import MultiScaleRoIAlign, roi_align
+from torchvision.ops import roi_align
 from torchvision.ops.feature_pyramid_network import LastLevelMaxPool
 from torchvision.ops.poolers import initLevelMapper
 
@@ -63,6 +63,7 @@ from togcrf.anchors import ANCHOR_ANGLES, DEFAULT_ANCHOR_SIZE, GRID, decode, mat
 from togcrf.crf import DEFAULT_BANDWIDTH, DEFAULT_ITERATIONS, MeanFieldCrf
 from togcrf.fcgn import box_candidates, image_anchors, image_grasp_targets
 from togcrf.losses import DEFAULT_NEGATIVE_RATIO, LOSS_KEYS, grasp_losses, object_map_loss, top1_task_hits
+from togcrf.roi_align import FastMultiScaleRoIAlign
 
 logger = logging.getLogger(__name__)
 
@@ -499,10 +500,14 @@ def build_rpn(options: ModelOptions) -> RegionProposalNetwork:
 
 
 def build_roi_heads(options: ModelOptions) -> RoIHeads:
-    """torchvision's RoIHeads: RoIAlign 7 x 7 on the FPN maps, the RCNN's two-layer MLP head and predictor."""
+    """torchvision's RoIHeads: RoIAlign 7 x 7 on the FPN maps, the RCNN's two-layer MLP head and predictor.
+
+    The pooling is torchvision's with a faster CPU backward (:mod:`togcrf.roi_align`); the box and the
+    grasp branch both pool through it.
+    """
     strides = fpn_strides(options)
-    roi_pool = MultiScaleRoIAlign([str(level) for level in range(len(strides))], output_size=GRID,
-                                  sampling_ratio=2)
+    roi_pool = FastMultiScaleRoIAlign([str(level) for level in range(len(strides))], output_size=GRID,
+                                      sampling_ratio=2)
     # torchvision infers the level scales from the first batch's image sizes and caches them; with
     # small images padded to a multiple of 32 that guess is off by a level, and it would depend on
     # which batch came first: the FPN strides are known, so fix the scales.
