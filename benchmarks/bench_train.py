@@ -54,7 +54,8 @@ BEFORE_OPTIONS = {"fpn_norm": False, "grasp_trunk_norm": False, "fpn_min_stride"
 
 
 def configurations() -> dict[str, dict]:
-    """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down", "optimizer", "lr"}."""
+    """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down", "optimizer", "lr",
+    "torchvision_roi_align"}."""
     from togcrf.reproduce import CPU_SCALE  # noqa: PLC0415
 
     recipe = {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
