@@ -34,6 +34,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 from torchvision.ops import MultiScaleRoIAlign, roi_align
+from torchvision.ops._utils import convert_boxes_to_roi_format  # what torchvision's own poolers call
 
 #: Bilinear corners per sampling point.
 CORNERS = 4
@@ -191,8 +192,7 @@ class FastMultiScaleRoIAlign(MultiScaleRoIAlign):
         if self.scales is None or self.map_levels is None:
             return super().forward(x, boxes, image_shapes)
         features = [feature for name, feature in x.items() if name in self.featmap_names]
-        rois = torch.cat([torch.cat([torch.full_like(image_boxes[:, :1], index), image_boxes], dim=1)
-                          for index, image_boxes in enumerate(boxes)])
+        rois = convert_boxes_to_roi_format(boxes)
         levels = self.map_levels(boxes)
         result = features[0].new_zeros((len(rois), features[0].shape[1], *self.output_size))
         for level, (feature, scale) in enumerate(zip(features, self.scales, strict=True)):
