@@ -28,6 +28,7 @@ Usage::
 
     python benchmarks/bench_train.py                                   # synthetic samples
     python benchmarks/bench_train.py --data data --pipeline recipe     # the recipe's data
+    python benchmarks/bench_train.py --data data --pipeline recipe --profile recipe   # where its step goes
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -147,6 +149,9 @@ def child(arguments: argparse.Namespace) -> None:
 
     for index in range(arguments.warmup):
         step(index)
+    if arguments.profile:
+        _print_profile(step, arguments.steps)
+        return
     started = time.perf_counter()
     for index in range(arguments.steps):
         step(index)
@@ -163,6 +168,24 @@ def child(arguments: argparse.Namespace) -> None:
     }))
 
 
+def _print_profile(step: Callable[[int], None], steps: int, rows: int = 25) -> None:
+    """Run ``steps`` steps under torch.profiler; print the operators by self CPU time, by input shapes."""
+    from torch.profiler import ProfilerActivity, profile  # noqa: PLC0415
+
+    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as profiler:
+        for index in range(steps):
+            step(index)
+    events = profiler.key_averages(group_by_input_shape=True)
+    total = sum(event.self_cpu_time_total for event in events)
+    convolutions = sum(event.self_cpu_time_total for event in events if "convolution" in event.key)
+    print(f"{steps} steps, {total / 1e3 / steps:.0f} ms of operators per step, "
+          f"{100 * convolutions / total:.0f} % in convolutions (forward and backward)")
+    print(f"{'operator':<34} {'ms/step':>8} {'share':>6} {'calls':>6}  first input shapes")
+    for event in sorted(events, key=lambda event: -event.self_cpu_time_total)[:rows]:
+        print(f"{event.key[:34]:<34} {event.self_cpu_time_total / 1e3 / steps:>8.1f} "
+              f"{100 * event.self_cpu_time_total / total:>5.1f}% {event.count / steps:>6.1f}  {event.input_shapes[:2]}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", help="Data dir with samples shards (default: synthetic samples).")
@@ -173,8 +196,13 @@ def main() -> None:
                         help="untimed steps first: a fresh model's first steps are slower than the rest of a run "
                         "(the configuration before the recipe: 2.5-2.9 s for its first 6 steps on a 2-core EPYC, then "
                         "1.0-1.4 s), and a training run is nearly all later steps")
+    parser.add_argument("--profile", choices=list(configurations()), metavar="CONFIGURATION",
+                        help="instead of the comparison, run this one configuration here under torch.profiler and "
+                        "print where its timed steps go: operators by self CPU time and input shapes")
     parser.add_argument("--configuration", help=argparse.SUPPRESS)
     arguments = parser.parse_args()
+    if arguments.profile:
+        arguments.configuration = arguments.profile
     if arguments.configuration:
         child(arguments)
         return
