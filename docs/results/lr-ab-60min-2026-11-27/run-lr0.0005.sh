@@ -1,18 +1,4 @@
 #!/bin/bash
-# The third arm of the learning-rate A/B (run.sh here): lr 0.0005, the same command, seed and thread count,
-# started after the other two had finished, on one thread while the other core ran the test suite.
-set -e
-export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
-OUT=${OUT:-runs/lr-ab-60min}
-mkdir -p $OUT
-OPTS="--data data --pipeline recipe --model tog --backbone resnet18 --epochs 50 --image-size 192 --batch-size 4 --optimizer adamw --lr-schedule cosine --warmup-steps 200 --scale-jitter 0.15 --val-samples 64 --time-budget 60 --device cpu --seed 1 --option fpn_min_stride=8 --option rpn_anchor_sizes=[16,32,64,128] --option fpn_channels=128 --option box_batch_per_image=64 --option box_head_size=256 --option grasp_channels=128 --option rpn_pre_nms_train=500 --option rpn_post_nms_train=250 --option grasp_anchor_size=12.0"
-lr=0.0005
-date
-togcrf train $OPTS --lr $lr --out $OUT/lr$lr > $OUT/lr$lr.train.log 2>&1
-date
-for protocol in ours lab; do
-  togcrf eval $OUT/lr$lr/checkpoint.pt --data data --pipeline recipe --split test --device cpu --speed-images 10 \
-    --protocol $protocol --out $OUT/lr$lr/eval-$protocol.json >> $OUT/lr$lr.eval.log 2>&1
-done
-date
-echo done > $OUT/DONE-lr$lr
+# The third arm of the learning-rate A/B: lr 0.0005, run.sh's command, seed and thread count, started after the
+# other two had finished, on one thread while the other core ran the test suite.
+exec env LRS=0.0005 "$(dirname "$0")/run.sh"
