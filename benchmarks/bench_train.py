@@ -9,11 +9,17 @@ invocation, so the ratio compares like with like on one machine:
   normalisation, 256 RCNN RoIs per image, a 1024-wide box head, 256-channel
   grasp blocks, 16 px grasp anchors and a scale jitter of +-10 % (images up
   to 211 px, padded to 224);
+- ``recipe-192-c5``: the CPU recipe until 2026-11-27: the whole ResNet-18
+  (C3-C5 in the FPN; RPN anchors of 16-128 px over four levels) at 192 px,
+  with 12 px grasp anchors;
 - ``recipe``: ``togcrf.reproduce.CPU_SCALE`` (its model options, batch size,
-  image size, scale jitter and optimiser);
+  image size, scale jitter and optimiser): since 2026-11-27 the ResNet
+  stops after C4 and the images are 160 px;
 - ``recipe-tv-roialign``: the recipe with torchvision's RoIAlign backward
-  instead of :mod:`togcrf.roi_align`'s sparse one, which is what the recipe
-  ran before 2026-11-27 (``before`` runs torchvision's too, as at 4bf0b66).
+  instead of :mod:`togcrf.roi_align`'s sparse one (``before`` runs
+  torchvision's too, as at 4bf0b66).
+
+``--only`` picks some of them (the ratios are printed for those present).
 
 Each configuration steps its own optimiser, built as ``togcrf train`` builds
 it (``togcrf.train.build_optimizer``): SGD with momentum before the recipe,
@@ -63,9 +69,13 @@ def configurations() -> dict[str, dict]:
     recipe = {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
               "image_size": CPU_SCALE.image_size, "jitter_up": 0.0, "jitter_down": CPU_SCALE.scale_jitter,
               "optimizer": CPU_SCALE.optimizer, "lr": CPU_SCALE.lr, "torchvision_roi_align": False}
+    until_2026_11_27 = {**recipe, "image_size": 192, "model_options": {
+        **recipe["model_options"], "fpn_max_stride": 32, "rpn_anchor_sizes": (16, 32, 64, 128),
+        "grasp_anchor_size": 12.0}}
     return {
         "before": {"model_options": BEFORE_OPTIONS, "batch_size": 2, "image_size": 192, "jitter_up": 0.1,
                    "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01, "torchvision_roi_align": True},
+        "recipe-192-c5": until_2026_11_27,
         "recipe-tv-roialign": {**recipe, "torchvision_roi_align": True},
         "recipe": recipe,
     }
@@ -199,6 +209,8 @@ def main() -> None:
     parser.add_argument("--profile", choices=list(configurations()), metavar="CONFIGURATION",
                         help="instead of the comparison, run this one configuration here under torch.profiler and "
                         "print where its timed steps go: operators by self CPU time and input shapes")
+    parser.add_argument("--only", nargs="+", choices=list(configurations()), metavar="CONFIGURATION",
+                        help=f"run only these configurations (default: all of {', '.join(configurations())})")
     parser.add_argument("--configuration", help=argparse.SUPPRESS)
     arguments = parser.parse_args()
     if arguments.profile:
@@ -210,7 +222,7 @@ def main() -> None:
           f"{arguments.warmup}, {'samples of ' + arguments.data if arguments.data else 'synthetic samples'}")
     print(f"{'configuration':<20} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9}")
     results = {}
-    for name in configurations():
+    for name in arguments.only or configurations():
         command = [sys.executable, __file__, "--configuration", name, "--backbone", arguments.backbone,
                    "--steps", str(arguments.steps), "--warmup", str(arguments.warmup)]
         if arguments.data:
@@ -223,7 +235,7 @@ def main() -> None:
         print(f"{name:<20} {result['batch_size']:>5} {result['seconds_per_step']:>8.2f} "
               f"{result['images_per_second']:>8.2f} {result['peak_rss_mib']:>13.0f} "
               f"{result['parameters_millions']:>9.1f}")
-    for baseline in ("before", "recipe-tv-roialign"):
+    for baseline in ("before", "recipe-192-c5", "recipe-tv-roialign"):
         if "recipe" in results and baseline in results:
             ratio = results["recipe"]["images_per_second"] / results[baseline]["images_per_second"]
             print(f"recipe / {baseline}: {ratio:.2f}x images per second")

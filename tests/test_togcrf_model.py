@@ -103,6 +103,26 @@ def test_backbone_takes_depth_and_has_trainable_normalisation():
     assert any(isinstance(module, torch.nn.BatchNorm2d) for module in batch_norm.backbone.modules())
 
 
+def test_fpn_max_stride_16_stops_the_resnet_after_c4_and_still_trains(batch):
+    full = build_model("tog", "resnet18", fpn_min_stride=8, rpn_anchor_sizes=(16, 32, 64, 128), **SMALL)
+    short = build_model("tog", "resnet18", fpn_min_stride=8, fpn_max_stride=16, rpn_anchor_sizes=(16, 32, 64),
+                        **SMALL)
+    assert hasattr(full.backbone.body, "layer4") and not hasattr(short.backbone.body, "layer4")
+    assert short.roi_heads.box_roi_pool.scales == [1 / 8, 1 / 16]
+    images, targets, _ = batch
+    with torch.no_grad():
+        maps = short.backbone(torch.stack(images))
+    assert list(maps) == ["0", "1", "pool"]
+    assert [maps[name].shape[-1] for name in maps] == [96 // 8, 96 // 16, 96 // 32]
+    short.train()
+    losses = short(images, targets)
+    assert all(torch.isfinite(value) for value in losses.values())
+    with pytest.raises(ValueError, match="expected 3 sizes"):
+        build_model("tog", fpn_min_stride=8, fpn_max_stride=16, rpn_anchor_sizes=(16, 32, 64, 128))
+    with pytest.raises(ValueError, match="fpn_max_stride 8"):
+        build_model("tog", fpn_max_stride=8)
+
+
 def test_training_returns_the_losses_and_gradients_reach_the_crf(batch):
     torch.manual_seed(0)
     images, targets, _ = batch

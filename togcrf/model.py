@@ -133,6 +133,12 @@ class ModelOptions:
         Finest FPN level: 4 pools RoIs from ResNet C2-C5 (torchvision's
         default), 8 from C3-C5 only (about a third less work at 192 px; the
         tools are at least 10 px wide there).
+    fpn_max_stride : {16, 32}
+        Coarsest ResNet stage the FPN takes: 32 (torchvision's) keeps C5; 16
+        stops the ResNet after C4, which drops its last stage (for ResNet-18,
+        8.4 M of its 11.2 M weights and 15 % of a training step of the CPU
+        recipe at 192 px); the "pool" level is then at stride 32 and
+        ``rpn_anchor_sizes`` needs one size fewer.
     fpn_norm : bool
         Normalise the FPN's lateral and output convolutions with ``norm``.
         torchvision's FPN has none; from scratch its maps grow large and
@@ -193,6 +199,7 @@ class ModelOptions:
     norm: str = "group"
     fpn_channels: int = 256
     fpn_min_stride: int = 4
+    fpn_max_stride: int = 32
     fpn_norm: bool = True
     grasp_trunk_norm: bool = True
     rpn_anchor_sizes: tuple[int, ...] = (16, 32, 64, 128, 256)
@@ -281,7 +288,7 @@ def norm_layer(kind: str) -> type[nn.Module] | callable:
 
 
 def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stride: int = 4,
-                   fpn_norm: bool = True) -> BackboneWithFPN:
+                   fpn_norm: bool = True, max_stride: int = 32) -> BackboneWithFPN:
     """A ResNet + FPN backbone for 1-channel depth input, randomly initialised, fully trainable.
 
     Parameters
@@ -295,20 +302,24 @@ def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stri
     min_stride : {4, 8}
         Stride of the finest FPN map.
     fpn_norm : bool
+    max_stride : {16, 32}
+        Stride of the coarsest ResNet stage kept; the stages after it are not built.
 
     Returns
     -------
     BackboneWithFPN
-        Maps "0", "1", ... at strides ``min_stride`` ... 32 and "pool" at 64.
+        Maps "0", "1", ... at strides ``min_stride`` ... ``max_stride`` and "pool" at twice that.
     """
     if name not in BACKBONES:
         raise ValueError(f"unknown backbone {name!r}; expected one of {BACKBONES}")
     if min_stride not in RESNET_STRIDES[:2]:
         raise ValueError(f"fpn_min_stride {min_stride}: expected 4 or 8")
+    if max_stride not in RESNET_STRIDES[2:]:
+        raise ValueError(f"fpn_max_stride {max_stride}: expected 16 or 32")
     body = resnet.__dict__[name](weights=None, norm_layer=norm_layer(norm))
     body.conv1 = nn.Conv2d(1, body.conv1.out_channels, kernel_size=7, stride=2, padding=3, bias=False)
     nn.init.kaiming_normal_(body.conv1.weight, mode="fan_out", nonlinearity="relu")
-    stages = [stage for stage, stride in enumerate(RESNET_STRIDES, start=1) if stride >= min_stride]
+    stages = [stage for stage, stride in enumerate(RESNET_STRIDES, start=1) if min_stride <= stride <= max_stride]
     stage_channels = body.inplanes // 8  # C2's width: 64 (basic blocks) or 256 (bottlenecks)
     return BackboneWithFPN(
         body, {f"layer{stage}": str(index) for index, stage in enumerate(stages)},
@@ -318,7 +329,7 @@ def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stri
 
 def fpn_strides(options: ModelOptions) -> tuple[int, ...]:
     """Strides of the FPN maps that RoIs are pooled from ("0", "1", ...; "pool" excluded)."""
-    return tuple(stride for stride in RESNET_STRIDES if stride >= options.fpn_min_stride)
+    return tuple(stride for stride in RESNET_STRIDES if options.fpn_min_stride <= stride <= options.fpn_max_stride)
 
 
 class ResBlock(nn.Module):
@@ -702,7 +713,7 @@ class GraspDetector(nn.Module):
             raise ValueError("grasp_object_map needs RoIs: it is an option of the \"roi\" grasp branch (TOG, "
                              "TOG-CRFs), not of FCGN + Task")
         self.backbone = build_backbone(backbone, options.norm, options.fpn_channels, options.fpn_min_stride,
-                                       options.fpn_norm)
+                                       options.fpn_norm, options.fpn_max_stride)
         self.rpn = build_rpn(options)
         self.roi_heads = build_roi_heads(options)
         self.grasp_head = build_grasp_head(grasp_branch, options)
