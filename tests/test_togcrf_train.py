@@ -94,9 +94,14 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
         train(quick_config(data_dir, run_dir, epochs=3, resume=True, backbone="resnet34"))
     with pytest.raises(ValueError, match="cannot resume, depth_reference was 'table', now 'median'"):
         train(quick_config(data_dir, run_dir, epochs=3, resume=True, depth_reference="median"))
-    # A checkpoint written before the depth reference was saved was trained on the table plane.
+    # A checkpoint written before the depth reference was saved was trained on the table plane, and one
+    # written before a model option existed ran with its default: both resume.
     del checkpoint["config"]["depth_reference"]
+    del checkpoint["config"]["model_options"]["fpn_max_stride"]
     torch.save(checkpoint, run_dir / "checkpoint.pt")
+    with pytest.raises(ValueError, match="cannot resume, model_options"):
+        train(quick_config(data_dir, run_dir, epochs=3, resume=True, model_options={
+            **SMALL, "fpn_max_stride": 16, "rpn_anchor_sizes": [16, 32, 64, 128]}))
     assert load_checkpoint(run_dir / "checkpoint.pt")[1]["depth_reference"] == "table"
     assert train(quick_config(data_dir, run_dir, epochs=3, resume=True))["epoch"] == 2
 

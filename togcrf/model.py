@@ -130,14 +130,13 @@ class ModelOptions:
     fpn_channels : int
         Channels of every FPN map (torchvision: 256).
     fpn_min_stride : {4, 8}
-        Finest FPN level: 4 pools RoIs from ResNet C2-C5 (torchvision's
-        default), 8 from C3-C5 only (about a third less work at 192 px; the
+        Finest FPN level: 4 pools RoIs from ResNet C2 up (torchvision's
+        default), 8 from C3 up only (about a third less work at 192 px; the
         tools are at least 10 px wide there).
     fpn_max_stride : {16, 32}
         Coarsest ResNet stage the FPN takes: 32 (torchvision's) keeps C5; 16
-        stops the ResNet after C4, which drops its last stage (for ResNet-18,
-        8.4 M of its 11.2 M weights and 15 % of a training step of the CPU
-        recipe at 192 px); the "pool" level is then at stride 32 and
+        stops the ResNet after C4, which drops its last stage (docs/togcrf.md,
+        "Model"); the "pool" level is then at stride 32 and
         ``rpn_anchor_sizes`` needs one size fewer.
     fpn_norm : bool
         Normalise the FPN's lateral and output convolutions with ``norm``.
@@ -252,7 +251,8 @@ class FcgnOptions(ModelOptions):
     Attributes
     ----------
     fcgn_level : int
-        FPN level the grasp branch runs on: "0"-"3" are strides 4-32 px.
+        FPN level the grasp branch runs on, an index into the FPN's strides: "0" is the
+        ``fpn_min_stride`` map (4 px by default, so "0"-"3" are strides 4-32 px).
     fcgn_channels : int
         Channels of the grasp branch's ResBlocks.
     fcgn_blocks : int
@@ -303,7 +303,7 @@ def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stri
         Stride of the finest FPN map.
     fpn_norm : bool
     max_stride : {16, 32}
-        Stride of the coarsest ResNet stage kept; the stages after it are not built.
+        Stride of the coarsest ResNet stage kept; the body drops the stages after it.
 
     Returns
     -------
