@@ -319,7 +319,7 @@ def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stri
     body = resnet.__dict__[name](weights=None, norm_layer=norm_layer(norm))
     body.conv1 = nn.Conv2d(1, body.conv1.out_channels, kernel_size=7, stride=2, padding=3, bias=False)
     nn.init.kaiming_normal_(body.conv1.weight, mode="fan_out", nonlinearity="relu")
-    stages = [stage for stage, stride in enumerate(RESNET_STRIDES, start=1) if min_stride <= stride <= max_stride]
+    stages = [RESNET_STRIDES.index(stride) + 1 for stride in _kept_strides(min_stride, max_stride)]
     stage_channels = body.inplanes // 8  # C2's width: 64 (basic blocks) or 256 (bottlenecks)
     return BackboneWithFPN(
         body, {f"layer{stage}": str(index) for index, stage in enumerate(stages)},
@@ -327,9 +327,14 @@ def build_backbone(name: str, norm: str = "group", channels: int = 256, min_stri
         extra_blocks=LastLevelMaxPool(), norm_layer=norm_layer(norm) if fpn_norm else None)
 
 
+def _kept_strides(min_stride: int, max_stride: int) -> tuple[int, ...]:
+    """Strides of the ResNet stages the FPN takes, finest first."""
+    return tuple(stride for stride in RESNET_STRIDES if min_stride <= stride <= max_stride)
+
+
 def fpn_strides(options: ModelOptions) -> tuple[int, ...]:
     """Strides of the FPN maps that RoIs are pooled from ("0", "1", ...; "pool" excluded)."""
-    return tuple(stride for stride in RESNET_STRIDES if options.fpn_min_stride <= stride <= options.fpn_max_stride)
+    return _kept_strides(options.fpn_min_stride, options.fpn_max_stride)
 
 
 class ResBlock(nn.Module):
