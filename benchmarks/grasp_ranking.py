@@ -19,7 +19,17 @@ or any candidate at all does (the ceilings of the ranking):
 
 It also says where the detector's own top-1 candidate lands: on the
 object's own pixels, on another object's, or on the table
-(``top-1 on ...``).
+(``top-1 on ...``), and gives the Table II figures (our protocol) of the
+same detections three ways (``TABLE_VARIANTS``):
+
+- ``detector``: as ``togcrf eval`` scores them;
+- ``grasp oracle``: each detection's candidates that match a ground-truth
+  grasp of an object it could claim (same category, IoU > 0.5) ranked
+  first: the mAP-G that a perfect ranking of the candidates would reach at
+  the detector's mAP;
+- ``score x top-1 stability``: each detection's score multiplied by the
+  P(stable) of its top-1 candidate, so that detections with an uncertain
+  grasp rank lower in mAP-G (and in mAP, which shares the score).
 
     python benchmarks/grasp_ranking.py runs/cpu-recipe/tog/checkpoint.pt --data data --pipeline recipe \
         --max-samples 100 [--json out.json]
@@ -29,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from itertools import islice
 from pathlib import Path
 
@@ -40,7 +51,7 @@ from togcrf.anchors import ANCHOR_ANGLES, GRID
 from togcrf.checkpoint import load_checkpoint
 from togcrf.data import depth_to_tensor
 from togcrf.evaluate import run_model
-from togcrf.metrics import Detections, GroundTruth, box_iou, grasp_match_matrix
+from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, box_iou, grasp_match_matrix
 
 #: IoU a detection needs with an object of its category to claim it (mAP's rule).
 CLAIM_IOU = 0.5
@@ -125,6 +136,48 @@ def tally(detections: Detections, truth: GroundTruth, mask: np.ndarray, object_i
         counts[LANDINGS[where[np.argmax(stability)]]] += 1
 
 
+def grasp_oracle(detections: Detections, truth: GroundTruth) -> Detections:
+    """The detections with the candidates that match a grasp of a claimable object ranked first (stability + 1)."""
+    stability = np.array(detections.grasp_stability, dtype=np.float64, copy=True)
+    iou = box_iou(detections.boxes, truth.boxes)
+    for detection in range(len(stability)):
+        claimable = (truth.categories == detections.categories[detection]) & (iou[detection] > CLAIM_IOU)
+        of_claimable = np.isin(truth.grasp_objects, np.nonzero(claimable)[0])
+        if of_claimable.any():
+            stability[detection] += grasp_match_matrix(detections.grasps[detection],
+                                                       truth.grasp_rectangles[of_claimable]).any(axis=1)
+    return replace(detections, grasp_stability=stability)
+
+
+def scored_by_top_grasp(detections: Detections, truth: GroundTruth) -> Detections:
+    """The detections with each score multiplied by the P(stable) of its top-1 candidate."""
+    stability = np.asarray(detections.grasp_stability, dtype=np.float64)
+    if stability.size == 0:
+        return detections
+    return replace(detections, scores=np.asarray(detections.scores) * stability.max(axis=1))
+
+
+#: The variants of the Table II figures: the same detections, as scored by ``togcrf eval`` or changed.
+TABLE_VARIANTS = {
+    "detector": lambda detections, truth: detections,
+    "grasp oracle": grasp_oracle,
+    "score x top-1 stability": scored_by_top_grasp,
+}
+TABLE_COLUMNS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10")
+
+
+def table_rows(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, dict[str, float]]:
+    """Table II figures (percent, our protocol) of each of ``TABLE_VARIANTS`` over the (detections, truth) pairs."""
+    rows = {}
+    for name, variant in TABLE_VARIANTS.items():
+        evaluator = TableTwoEvaluator()
+        for detections, truth in pairs:
+            evaluator.add(variant(detections, truth), truth)
+        result = evaluator.result()
+        rows[name] = {column: round(100.0 * float(result[column]), 1) for column in TABLE_COLUMNS}
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", type=Path)
@@ -140,13 +193,14 @@ def main() -> None:
         key: 0 for name in RANKINGS for key in (name, f"{name} top5")} | dict.fromkeys(
         ("own-mask oracle", *LANDINGS), 0)
     distances: dict[str, list[float]] = {"match": [], "miss": []}
+    pairs = []
     samples = iter_samples(arguments.data, split=arguments.split,
                            shards=sample_shards(arguments.data, arguments.pipeline))
     for sample in islice(samples, arguments.max_samples):
         image, scale = depth_to_tensor(sample.depth, config.get("image_size"),
                                        config["depth_reference"])
-        tally(run_model(model, image, scale), GroundTruth.from_sample(sample), sample.mask, sample.object_indices,
-              counts, distances)
+        pairs.append((run_model(model, image, scale), GroundTruth.from_sample(sample)))
+        tally(*pairs[-1], sample.mask, sample.object_indices, counts, distances)
     objects = max(counts["objects"], 1)
     shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}
     print(f"{counts['objects']} claimed objects with grasps; share whose top-1 (top-5) grasp matches one of theirs, "
@@ -158,10 +212,15 @@ def main() -> None:
     for outcome, values in quartiles.items():
         print(f"  top-1 {outcome}es ({len(distances[outcome])}): distance to the nearest ground-truth grasp centre, "
               f"quartiles {values} px")
+    rows = table_rows(pairs)
+    print(f"Table II figures of these {len(pairs)} samples (percent, our protocol):")
+    for name, row in rows.items():
+        print(f"  {name:28s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
     if arguments.json:
         arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "objects": counts["objects"],
                                               "shares_percent": shares,
-                                              "top1_distance_quartiles_px": quartiles}, indent=1) + "\n")
+                                              "top1_distance_quartiles_px": quartiles,
+                                              "table_percent": rows}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

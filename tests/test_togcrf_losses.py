@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from togcrf.losses import grasp_losses, hard_negative_selection, top1_task_hits
+from togcrf.losses import grasp_losses, hard_negative_selection, top1_ranking_loss, top1_task_hits
 
 
 def test_mining_keeps_every_positive_and_the_hardest_negatives_of_each_row():
@@ -75,3 +77,48 @@ def test_grasp_losses_average_over_positives_and_vanish_when_fitted():
     shifted[..., 0] += 0.5
     off = grasp_losses(fitted_stability, shifted, fitted_tasks, positive, targets, task_targets)
     assert abs(float(off["grasp_regression"]) - 0.125) < 1e-6
+
+
+def _margins_as_logits(margins: list[list[float]]) -> torch.Tensor:
+    """(R, K, 2) stability logits whose stable-minus-unstable margins are ``margins``."""
+    margin = torch.tensor(margins)
+    return torch.stack([torch.zeros_like(margin), margin], dim=-1)
+
+
+def test_top1_ranking_loss_is_the_cross_entropy_of_a_softmax_over_each_rois_candidates():
+    positive = torch.tensor([[False, True, False, False], [False, False, False, False], [True, False, True, False]])
+    uniform = top1_ranking_loss(_margins_as_logits([[0.0] * 4] * 3), positive)
+    # equal margins: -log(1/4) for the RoI with one positive, -log(2/4) for the one with two; the RoI
+    # without a positive does not count
+    assert abs(float(uniform) - (math.log(4) + math.log(2)) / 2) < 1e-6
+    first = top1_ranking_loss(_margins_as_logits([[0.0, 9.0, 0.0, 0.0], [0.0] * 4, [9.0, 0.0, 0.0, 0.0]]), positive)
+    beaten = top1_ranking_loss(_margins_as_logits([[9.0, 0.0, 0.0, 0.0], [0.0] * 4, [0.0, 9.0, 0.0, 0.0]]),
+                               positive)
+    assert float(first) < 0.01
+    assert float(beaten) > 5.0
+    # the gradient raises the positive's margin and lowers the negative that outranks it
+    logits = _margins_as_logits([[3.0, 1.0, -2.0, -2.0]]).requires_grad_()
+    top1_ranking_loss(logits, positive[:1]).backward()
+    margin_gradient = logits.grad[0, :, 1] - logits.grad[0, :, 0]
+    assert margin_gradient[1] < 0 < margin_gradient[0]
+    nothing = top1_ranking_loss(_margins_as_logits([[1.0, 2.0]]), torch.zeros((1, 2), dtype=torch.bool))
+    assert float(nothing) == 0.0
+
+
+def test_grasp_losses_add_the_weighted_ranking_term_to_the_stability_loss_only():
+    generator = torch.Generator().manual_seed(2)
+    positive = torch.zeros((3, 6), dtype=torch.bool)
+    positive[0, 2] = positive[2, [0, 5]] = True
+    stability = torch.randn((3, 6, 2), generator=generator)
+    regression = torch.randn((3, 6, 5), generator=generator)
+    task_log_probs = torch.randn((3, 6, 4), generator=generator).log_softmax(dim=-1)
+    task_targets = torch.zeros((3, 6, 4))
+    task_targets[..., 1] = 1.0
+    arguments = (stability, regression, task_log_probs, positive, torch.zeros_like(regression), task_targets)
+    plain = grasp_losses(*arguments)
+    ranked = grasp_losses(*arguments, ranking_weight=0.5)
+    expected = plain["grasp_stability"] + 0.5 * top1_ranking_loss(stability, positive)
+    assert abs(float(ranked["grasp_stability"]) - float(expected)) < 1e-6
+    assert float(ranked["grasp_stability"]) > float(plain["grasp_stability"])
+    for key in ("grasp_regression", "grasp_task"):
+        assert float(ranked[key]) == float(plain[key])

@@ -1,7 +1,8 @@
 #!/bin/bash
 # A/B of a lighter network at the 60-minute budget: TOG, seed 1, the recipe's 60-minute command ("recipe")
 # beside the same with the ResNet stopped after C4 (fpn_max_stride 16, RPN anchors of 32, 64, 128 px on the three
-# levels left) at 160 px with the anchors scaled with the image ("c4-160"); "c4" is the C4 network at 192 px.
+# levels left) at 160 px with the anchors scaled with the image ("c4-160"); "c4" is the C4 network at 192 px,
+# "c4-160-rank" the c4-160 arm with the top-1 ranking term in the stability loss (run-ranking.sh).
 # The arms run side by side on one thread each (the two cores of a 2-core machine), then each is evaluated on
 # the recipe's test split under both protocols. Run from the repository root with the venv active.
 # ARMS picks the arms (default: recipe c4-160); MODEL the model (default tog; run-tog-crfs.sh: tog-crfs).
@@ -17,6 +18,7 @@ declare -A ARM_OPTS=(
   [recipe]="--image-size 192 --option rpn_anchor_sizes=[16,32,64,128] --option grasp_anchor_size=12.0"
   [c4]="--image-size 192 --option fpn_max_stride=16 --option rpn_anchor_sizes=[32,64,128] --option grasp_anchor_size=12.0"
   [c4-160]="--image-size 160 --option fpn_max_stride=16 --option rpn_anchor_sizes=[27,53,107] --option grasp_anchor_size=10.0"
+  [c4-160-rank]="--image-size 160 --option fpn_max_stride=16 --option rpn_anchor_sizes=[27,53,107] --option grasp_anchor_size=10.0 --option grasp_ranking_weight=1.0"
 )
 date
 for arm in $ARMS; do
