@@ -50,7 +50,7 @@ from osgd.contract.samples import iter_samples, sample_shards
 from togcrf.anchors import ANCHOR_ANGLES, GRID
 from togcrf.checkpoint import load_checkpoint
 from togcrf.data import depth_to_tensor
-from togcrf.evaluate import run_model
+from togcrf.evaluate import TABLE_COLUMNS, run_model
 from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, box_iou, grasp_match_matrix
 
 #: IoU a detection needs with an object of its category to claim it (mAP's rule).
@@ -86,12 +86,18 @@ RANKINGS = {
 }
 
 
+def claimable(detections: Detections, truth: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
+    """(D, N) bool: which objects each detection may claim (same category, IoU > ``CLAIM_IOU``); and the (D, N) IoU."""
+    iou = box_iou(detections.boxes, truth.boxes)
+    return (truth.categories[None, :] == np.asarray(detections.categories)[:, None]) & (iou > CLAIM_IOU), iou
+
+
 def claimed_objects(detections: Detections, truth: GroundTruth) -> list[tuple[int, int]]:
     """(detection, object) pairs: each object with grasps claimed by its best-scored overlapping detection."""
-    iou = box_iou(detections.boxes, truth.boxes)
+    may_claim, iou = claimable(detections, truth)
     pairs, taken = [], set()
     for detection in np.argsort(-detections.scores, kind="stable"):
-        same = (truth.categories == detections.categories[detection]) & (iou[detection] > CLAIM_IOU)
+        same = may_claim[detection]
         free = [index for index in np.nonzero(same)[0] if index not in taken]
         if not free:
             continue
@@ -139,10 +145,9 @@ def tally(detections: Detections, truth: GroundTruth, mask: np.ndarray, object_i
 def grasp_oracle(detections: Detections, truth: GroundTruth) -> Detections:
     """The detections with the candidates that match a grasp of a claimable object ranked first (stability + 1)."""
     stability = np.array(detections.grasp_stability, dtype=np.float64, copy=True)
-    iou = box_iou(detections.boxes, truth.boxes)
+    may_claim, _ = claimable(detections, truth)
     for detection in range(len(stability)):
-        claimable = (truth.categories == detections.categories[detection]) & (iou[detection] > CLAIM_IOU)
-        of_claimable = np.isin(truth.grasp_objects, np.nonzero(claimable)[0])
+        of_claimable = np.isin(truth.grasp_objects, np.nonzero(may_claim[detection])[0])
         if of_claimable.any():
             stability[detection] += grasp_match_matrix(detections.grasps[detection],
                                                        truth.grasp_rectangles[of_claimable]).any(axis=1)
@@ -163,7 +168,8 @@ TABLE_VARIANTS = {
     "grasp oracle": grasp_oracle,
     "score x top-1 stability": scored_by_top_grasp,
 }
-TABLE_COLUMNS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10")
+#: The metric columns of Table II (``togcrf.evaluate``'s, without the speed).
+METRIC_COLUMNS = TABLE_COLUMNS[:-1]
 
 
 def table_rows(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, dict[str, float]]:
@@ -174,7 +180,7 @@ def table_rows(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, dict[st
         for detections, truth in pairs:
             evaluator.add(variant(detections, truth), truth)
         result = evaluator.result()
-        rows[name] = {column: round(100.0 * float(result[column]), 1) for column in TABLE_COLUMNS}
+        rows[name] = {column: round(100.0 * float(result[column]), 1) for column in METRIC_COLUMNS}
     return rows
 
 

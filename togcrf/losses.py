@@ -88,7 +88,7 @@ def top1_ranking_loss(stability_logits: torch.Tensor, positive: torch.Tensor) ->
     rows = positive.any(dim=1)
     if not bool(rows.any()):
         return stability_logits.sum() * 0
-    margins = (stability_logits[rows][..., 1] - stability_logits[rows][..., 0]).float()
+    margins = (stability_logits[..., 1] - stability_logits[..., 0])[rows].float()
     positive_margins = margins.masked_fill(~positive[rows], float("-inf"))
     return (torch.logsumexp(margins, dim=1) - torch.logsumexp(positive_margins, dim=1)).mean()
 
