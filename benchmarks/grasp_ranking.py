@@ -13,6 +13,9 @@ or any candidate at all does (the ceilings of the ranking):
   candidate, same anchor angle (edges average what exists);
 - ``smooth-cells-angles``: the 3 x 3 cells and the two neighbouring anchor
   angles;
+- ``stability x task confidence``: P(stable) times the candidate's largest
+  task probability (the task head is trained on annotated places only, so
+  a confident task may mark one);
 - ``own-mask oracle``: P(stable) of the candidates whose centre lies on the
   object's own visible pixels (the sample's instance mask, which the model
   never sees): the ceiling of telling the object from its neighbours.
@@ -27,6 +30,8 @@ same detections three ways (``TABLE_VARIANTS``):
   grasp of an object it could claim (same category, IoU > 0.5) ranked
   first: the mAP-G that a perfect ranking of the candidates would reach at
   the detector's mAP;
+- ``smooth-cells ranking``: each detection's candidates ranked by the
+  ``smooth-cells`` mean instead of their own P(stable);
 - ``score x top-1 stability``: each detection's score multiplied by the
   P(stable) of its top-1 candidate, so that detections with an uncertain
   grasp rank lower in mAP-G (and in mAP, which shares the score).
@@ -79,10 +84,12 @@ def neighbourhood_mean(stability: np.ndarray, angle_radius: int) -> np.ndarray:
     return np.nanmean(np.stack(stacked), axis=0).reshape(-1)
 
 
+#: Rankings of one detection's candidates: name -> f(stability (K,), task probabilities (K, 12)) -> (K,) key.
 RANKINGS = {
-    "stability": lambda stability: stability,
-    "smooth-cells": lambda stability: neighbourhood_mean(stability, 0),
-    "smooth-cells-angles": lambda stability: neighbourhood_mean(stability, 1),
+    "stability": lambda stability, tasks: stability,
+    "smooth-cells": lambda stability, tasks: neighbourhood_mean(stability, 0),
+    "smooth-cells-angles": lambda stability, tasks: neighbourhood_mean(stability, 1),
+    "stability x task confidence": lambda stability, tasks: stability * tasks.max(axis=-1),
 }
 
 
@@ -135,7 +142,7 @@ def tally(detections: Detections, truth: GroundTruth, mask: np.ndarray, object_i
         counts["objects"] += 1
         counts["any candidate"] += int(matches.any())
         for name, rank in RANKINGS.items():
-            order = np.argsort(-rank(stability), kind="stable")
+            order = np.argsort(-rank(stability, detections.grasp_task_probs[detection]), kind="stable")
             counts[name] += int(matches[order[0]])
             counts[f"{name} top5"] += int(matches[order[:5]].any())
         counts["own-mask oracle"] += int(matches[np.argmax(np.where(where == 0, stability, -1.0))])
@@ -162,10 +169,17 @@ def scored_by_top_grasp(detections: Detections, truth: GroundTruth) -> Detection
     return replace(detections, scores=np.asarray(detections.scores) * stability.max(axis=1))
 
 
+def ranked_by_smoothed_cells(detections: Detections, truth: GroundTruth) -> Detections:
+    """The detections with each candidate's P(stable) replaced by its ``smooth-cells`` mean (its top-1 moves)."""
+    stability = [neighbourhood_mean(np.asarray(row, dtype=np.float64), 0) for row in detections.grasp_stability]
+    return replace(detections, grasp_stability=np.asarray(stability).reshape(np.shape(detections.grasp_stability)))
+
+
 #: The variants of the Table II figures: the same detections, as scored by ``togcrf eval`` or changed.
 TABLE_VARIANTS = {
     "detector": lambda detections, truth: detections,
     "grasp oracle": grasp_oracle,
+    "smooth-cells ranking": ranked_by_smoothed_cells,
     "score x top-1 stability": scored_by_top_grasp,
 }
 #: The metric columns of Table II (``togcrf.evaluate``'s, without the speed).
@@ -212,7 +226,7 @@ def main() -> None:
     print(f"{counts['objects']} claimed objects with grasps; share whose top-1 (top-5) grasp matches one of theirs, "
           "and where the top-1 lands:")
     for name, share in shares.items():
-        print(f"  {name:28s} {share:5.1f} %")
+        print(f"  {name:34s} {share:5.1f} %")
     quartiles = {outcome: [round(float(value), 1) for value in np.percentile(values, (25, 50, 75))] if values else []
                  for outcome, values in distances.items()}
     for outcome, values in quartiles.items():
@@ -221,7 +235,7 @@ def main() -> None:
     rows = table_rows(pairs)
     print(f"Table II figures of these {len(pairs)} samples (percent, our protocol):")
     for name, row in rows.items():
-        print(f"  {name:28s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
+        print(f"  {name:34s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
     if arguments.json:
         arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "objects": counts["objects"],
                                               "shares_percent": shares,

@@ -388,6 +388,24 @@ def test_cli_prints_progress_lines_off_a_terminal(data_dir, tmp_path):
     assert "epoch 1/1 step 2/2" in log and "epoch 1/1 done" in log
 
 
+def test_time_left_under_a_budget_follows_the_budget_clock_not_the_epochs(tmp_path):
+    """The budget counts training steps only: the time left is the wall time per spent fraction, scaled."""
+    from togcrf.train import Progress, ProgressReport  # noqa: PLC0415
+
+    report = ProgressReport(tmp_path, epochs=50)
+    assert report._budget_left(elapsed=10.0, spent=0.25) == math.inf  # a resumed run: nothing spent here yet
+    # 60 wall seconds (steps, data loading, validation) spent 0.1 of the budget: 0.65 left takes 390 s
+    assert report._budget_left(elapsed=70.0, spent=0.35) == pytest.approx(390.0)
+    assert report._budget_left(elapsed=400.0, spent=1.2) == 0.0
+    # a line at the budget's end says 0s left, though 49 epochs would remain by the epoch count
+    report = ProgressReport(tmp_path / "run", epochs=50)
+    report.terminal = False
+    report(Progress(23, 50, 1, 433, {"rcnn_class": 1.0}, images_per_second=10.0, budget_spent=0.9))
+    report(Progress(23, 50, 433, 433, {"rcnn_class": 1.0}, images_per_second=10.0, budget_spent=1.0))
+    last = (tmp_path / "run" / "train.log").read_text().splitlines()[-1]
+    assert "epoch 24/50 step 433/433" in last and last.endswith("run left 0s")
+
+
 def test_resuming_keeps_the_fused_optimiser():
     """An AdamW state saved before the optimiser was fused loads into the fused one without unfusing it."""
     from togcrf.train import _with_this_implementation, build_optimizer  # noqa: PLC0415

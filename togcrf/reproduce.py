@@ -291,8 +291,7 @@ def reproduce_command(
 
         result = reproduce(data, out, chosen, pipeline=pipeline, models=selected, device=device, seed=seed,
                            speed_images=speed_images,
-                           progress=lambda run_dir, size: ProgressReport(run_dir, size.epochs,
-                                                                         size.time_budget_minutes))
+                           progress=lambda run_dir, size: ProgressReport(run_dir, size.epochs))
     except (FileNotFoundError, ValueError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error

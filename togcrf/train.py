@@ -207,6 +207,8 @@ class Progress:
     losses: dict[str, float]
     metrics: dict[str, float] | None = None
     images_per_second: float | None = None
+    #: Fraction of the time budget spent so far (its clock counts training steps only); None without a budget.
+    budget_spent: float | None = None
 
 
 def resolve_device(name: str) -> torch.device:
@@ -457,7 +459,8 @@ def train_one_epoch(run: _Run, epoch: int, progress: Callable[[Progress], None] 
                 writer.add_scalar(f"step/{key}", value, run.global_step)
         if progress is not None:
             progress(Progress(epoch, config.epochs, steps, len(run.loader), step_losses,
-                              images_per_second=samples / max(time.perf_counter() - started, 1e-9)))
+                              images_per_second=samples / max(time.perf_counter() - started, 1e-9),
+                              budget_spent=None if config.time_budget_minutes is None else run.budget_spent()))
         if run.budget_spent() >= 1.0:
             run.out_of_time = True
             break
@@ -600,19 +603,20 @@ class ProgressReport:
     """The command's progress: a bar on a terminal, and lines at a steady pace in ``train.log`` and off a terminal.
 
     A line: epoch, step, total loss and its largest terms, images per second,
-    the time left in the epoch and in the run.
+    the time left in the epoch and in the run (under a time budget, the wall
+    time the budget's spent fraction took so far, scaled to what is left).
     """
 
     #: Seconds between progress lines.
     LINE_INTERVAL = 30.0
 
-    def __init__(self, run_dir: Path, epochs: int, budget_minutes: float | None = None) -> None:
+    def __init__(self, run_dir: Path, epochs: int) -> None:
         from tqdm import tqdm  # noqa: PLC0415 - CLI side only
 
         self._tqdm = tqdm
         self.bar = None
         self.epochs = epochs
-        self.budget_seconds = None if budget_minutes is None else 60.0 * budget_minutes
+        self.first_spent: tuple[float, float] | None = None  # (budget fraction, wall seconds) at the first step
         self.started = time.perf_counter()
         self.last_line = 0.0
         self.steps_done = 0
@@ -629,6 +633,18 @@ class ProgressReport:
         else:
             typer.echo(text)
 
+    def _budget_left(self, elapsed: float, spent: float) -> float:
+        """Wall seconds left of a time budget: the wall time per budget fraction so far, times the fraction left.
+
+        The budget counts training steps only, so its wall time also holds the data loading and validation.
+        """
+        if self.first_spent is None:
+            self.first_spent = (spent, elapsed)
+        spent_here, wall_here = spent - self.first_spent[0], elapsed - self.first_spent[1]
+        if spent_here <= 0 or wall_here <= 0:
+            return float("inf")
+        return max(0.0, 1.0 - spent) * wall_here / spent_here
+
     def __call__(self, event: Progress) -> None:
         if event.metrics is not None:
             self._epoch_done(event)
@@ -638,8 +654,8 @@ class ProgressReport:
         per_step = elapsed / self.steps_done
         epoch_left = (event.steps - event.step) * per_step
         run_left = epoch_left + (self.epochs - event.epoch - 1) * event.steps * per_step
-        if self.budget_seconds is not None:
-            run_left = min(run_left, self.budget_seconds - elapsed)  # approximate: this clock runs on in validation
+        if event.budget_spent is not None:
+            run_left = min(run_left, self._budget_left(elapsed, event.budget_spent))
         loss = sum(event.losses.values())
         if self.terminal:
             if self.bar is None:
@@ -761,7 +777,7 @@ def register(app: typer.Typer) -> None:
             depth_reference=depth_reference,
             time_budget_minutes=time_budget or None, init=None if init is None else str(init), split=split)
         main = distributed.from_environment().main
-        report = ProgressReport(out, epochs, config.time_budget_minutes) if main else None
+        report = ProgressReport(out, epochs) if main else None
         try:
             result = train(config, report)
         except (ValueError, FileNotFoundError, FloatingPointError) as error:
