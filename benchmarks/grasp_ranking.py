@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from dataclasses import replace
 from itertools import islice
 from pathlib import Path
@@ -169,17 +170,23 @@ def scored_by_top_grasp(detections: Detections, truth: GroundTruth) -> Detection
     return replace(detections, scores=np.asarray(detections.scores) * stability.max(axis=1))
 
 
-def ranked_by_smoothed_cells(detections: Detections, truth: GroundTruth) -> Detections:
-    """The detections with each candidate's P(stable) replaced by its ``smooth-cells`` mean (its top-1 moves)."""
-    stability = [neighbourhood_mean(np.asarray(row, dtype=np.float64), 0) for row in detections.grasp_stability]
-    return replace(detections, grasp_stability=np.asarray(stability).reshape(np.shape(detections.grasp_stability)))
+def ranked_by(name: str) -> Callable[[Detections, GroundTruth], Detections]:
+    """A variant whose detections carry the key of ``RANKINGS[name]`` as their P(stable) (their top-1 moves)."""
+    rank = RANKINGS[name]
+
+    def variant(detections: Detections, truth: GroundTruth) -> Detections:
+        keys = [rank(np.asarray(stability, dtype=np.float64), tasks)
+                for stability, tasks in zip(detections.grasp_stability, detections.grasp_task_probs, strict=True)]
+        return replace(detections, grasp_stability=np.asarray(keys).reshape(np.shape(detections.grasp_stability)))
+
+    return variant
 
 
 #: The variants of the Table II figures: the same detections, as scored by ``togcrf eval`` or changed.
 TABLE_VARIANTS = {
     "detector": lambda detections, truth: detections,
     "grasp oracle": grasp_oracle,
-    "smooth-cells ranking": ranked_by_smoothed_cells,
+    "smooth-cells ranking": ranked_by("smooth-cells"),
     "score x top-1 stability": scored_by_top_grasp,
 }
 #: The metric columns of Table II (``togcrf.evaluate``'s, without the speed).
