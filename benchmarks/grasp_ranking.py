@@ -193,16 +193,19 @@ TABLE_VARIANTS = {
 METRIC_COLUMNS = TABLE_COLUMNS[:-1]
 
 
+def table_figures(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, float]:
+    """Table II figures (percent, our protocol, ``METRIC_COLUMNS``) of the (detections, truth) pairs."""
+    evaluator = TableTwoEvaluator()
+    for detections, truth in pairs:
+        evaluator.add(detections, truth)
+    result = evaluator.result()
+    return {column: round(100.0 * float(result[column]), 1) for column in METRIC_COLUMNS}
+
+
 def table_rows(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, dict[str, float]]:
-    """Table II figures (percent, our protocol) of each of ``TABLE_VARIANTS`` over the (detections, truth) pairs."""
-    rows = {}
-    for name, variant in TABLE_VARIANTS.items():
-        evaluator = TableTwoEvaluator()
-        for detections, truth in pairs:
-            evaluator.add(variant(detections, truth), truth)
-        result = evaluator.result()
-        rows[name] = {column: round(100.0 * float(result[column]), 1) for column in METRIC_COLUMNS}
-    return rows
+    """Table II figures of each of ``TABLE_VARIANTS`` over the (detections, truth) pairs."""
+    return {name: table_figures([(variant(detections, truth), truth) for detections, truth in pairs])
+            for name, variant in TABLE_VARIANTS.items()}
 
 
 def main() -> None:

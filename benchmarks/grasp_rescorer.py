@@ -45,14 +45,14 @@ import torch
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from grasp_ranking import METRIC_COLUMNS, claimed_objects, grasp_oracle
+from grasp_ranking import claimed_objects, grasp_oracle, table_figures
 
 from osgd.contract.samples import iter_samples, sample_shards
 from osgd.contract.taxonomy import CATEGORIES
 from togcrf.checkpoint import load_checkpoint
 from togcrf.data import depth_to_tensor, normalise_depth
 from togcrf.evaluate import run_model
-from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, grasp_match_matrix
+from togcrf.metrics import Detections, GroundTruth, grasp_match_matrix
 
 LOG = logging.getLogger("grasp_rescorer")
 
@@ -202,24 +202,15 @@ def rescored(network: Rescorer, detections: Detections, height: np.ndarray, top_
     return replace(detections, grasp_stability=stability)
 
 
-def top1_share(images: list[tuple[Detections, GroundTruth, np.ndarray]], variant) -> float:
-    """Percent of claimed objects with grasps whose top-1 candidate (after ``variant``) matches one of theirs."""
+def top1_share(pairs: list[tuple[Detections, GroundTruth]]) -> float:
+    """Percent of claimed objects with grasps whose top-1 candidate matches one of theirs."""
     hits = objects = 0
-    for detections, truth, height in images:
-        changed = variant(detections, truth, height)
+    for detections, truth in pairs:
         for detection, target in claimed_objects(detections, truth):
-            top = changed.grasps[detection][np.argmax(changed.grasp_stability[detection])]
+            top = detections.top_grasp(detection)
             hits += int(grasp_match_matrix(top[None], truth.grasp_rectangles[truth.grasp_objects == target]).any())
             objects += 1
     return 100.0 * hits / max(objects, 1)
-
-
-def table_figures(images, variant) -> dict[str, float]:
-    evaluator = TableTwoEvaluator()
-    for detections, truth, height in images:
-        evaluator.add(variant(detections, truth, height), truth)
-    result = evaluator.result()
-    return {column: round(100.0 * float(result[column]), 1) for column in METRIC_COLUMNS}
 
 
 def main() -> None:
@@ -260,8 +251,9 @@ def main() -> None:
                   [labels.any() for labels in test.labels])), 1),
               "top1_match_percent": {}, "table_percent": {}}
     for name, variant in variants.items():
-        report["top1_match_percent"][name] = round(top1_share(test.images, variant), 1)
-        report["table_percent"][name] = table_figures(test.images, variant)
+        pairs = [(variant(detections, truth, height), truth) for detections, truth, height in test.images]
+        report["top1_match_percent"][name] = round(top1_share(pairs), 1)
+        report["table_percent"][name] = table_figures(pairs)
         LOG.info("%-24s top-1 match %5.1f %%  %s", name, report["top1_match_percent"][name],
                  "  ".join(f"{key} {value:5.1f}" for key, value in report["table_percent"][name].items()))
     if arguments.json:
