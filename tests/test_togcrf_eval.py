@@ -187,6 +187,15 @@ def test_table_names_the_seeds_and_averages_over_them(tmp_path: Path) -> None:
         result = CliRunner().invoke(app, ["table", str(alike[0]), str(runs[2]), str(alike[1])])
         names = [line.split("  ")[0] for line in result.output.strip().splitlines()[2:]]
         assert names == ["TOG [run 1]", "TOG-CRFs", "TOG [run 2]"], result.output
+    # an evaluation committed as MODEL-eval.json takes its seed from MODEL-config.json beside it
+    committed = tmp_path / "committed"
+    committed.mkdir()
+    for seed in (4, 5):
+        (committed / f"s{seed}-eval-lab.json").write_text((runs[0] / "eval.json").read_text())
+        (committed / f"s{seed}-config.json").write_text(json.dumps({"seed": seed, "model": "tog"}))
+    result = CliRunner().invoke(app, ["table", *(str(committed / f"s{seed}-eval-lab.json") for seed in (4, 5))])
+    names = [line.split("  ")[0] for line in result.output.strip().splitlines()[2:]]
+    assert names == ["TOG [seed 4]", "TOG [seed 5]"], result.output
     # one run under both protocols, --mixed: each row marked with its protocol, no seed needed
     lab = _evaluated_run(tmp_path / "lab" / "tog", "tog", 0, 11.0, None, protocol="lab")
     result = CliRunner().invoke(app, ["table", str(runs[0]), str(lab), "--mixed"])

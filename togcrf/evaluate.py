@@ -5,7 +5,8 @@ split (batch 1), scores it with :mod:`togcrf.metrics` and measures its speed;
 ``togcrf table RUN_DIR...`` prints the rows of several runs side by side, as
 in the paper's Table II (percentages; speed in frames per second); runs of
 one model with several seeds are told apart by the seed in the run's
-``config.json``, and ``--mean`` prints each model's mean over its runs with
+``config.json`` (or in the ``MODEL-config.json`` beside an evaluation
+committed as ``MODEL-eval.json``), and ``--mean`` prints each model's mean over its runs with
 the sample standard deviation beneath.
 
 An evaluation JSON (``eval.json`` next to the checkpoint unless ``--out``
@@ -319,20 +320,28 @@ def format_table(rows: Sequence[tuple[str, dict[str, float | None]]], protocol: 
 
 
 def run_seed(path: Path) -> int | None:
-    """The training seed of an evaluation: ``seed`` of the ``config.json`` beside it (None if there is none).
+    """The training seed of an evaluation: ``seed`` of the run's config beside it (None if there is none).
+
+    The config is ``config.json`` in the run dir, or, for an evaluation committed as ``MODEL-eval.json``
+    or ``MODEL-eval-lab.json`` (the files under docs/results/), ``MODEL-config.json`` beside it.
 
     Parameters
     ----------
     path : Path
-        A run dir, or an evaluation JSON inside one (``eval.json``, ``eval-lab.json``).
+        A run dir, or an evaluation JSON inside one (``eval.json``, ``eval-lab.json``) or beside its config.
     """
     path = Path(path)
-    config = (path if path.is_dir() else path.parent) / "config.json"
-    try:
-        seed = json.loads(config.read_text()).get("seed")
-    except (OSError, json.JSONDecodeError):
-        return None
-    return seed if isinstance(seed, int) else None
+    folder = path if path.is_dir() else path.parent
+    candidates = [folder / "config.json"]
+    if not path.is_dir() and "-eval" in path.name:
+        candidates.insert(0, folder / f"{path.name.rsplit('-eval', 1)[0]}-config.json")
+    for config in candidates:
+        try:
+            seed = json.loads(config.read_text()).get("seed")
+        except (OSError, json.JSONDecodeError):
+            continue
+        return seed if isinstance(seed, int) else None
+    return None
 
 
 def named_rows(models: Sequence[str], rows: Sequence[dict[str, float | None]], seeds: Sequence[int | None],

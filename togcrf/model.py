@@ -902,7 +902,7 @@ class GraspDetector(nn.Module):
             for index, detection in enumerate(detections)]
 
 
-#: The name older code and the docs give the detector.
+#: The name older code gives the detector.
 TogDetector = GraspDetector
 
 
