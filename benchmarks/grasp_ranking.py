@@ -1,8 +1,9 @@
 """Where a detector's top-1 grasp lands, under several ways of ranking its candidates (issue #15).
 
 mAP-G counts a detection only when its top-1 grasp matches one of its
-object's ground-truth grasps (``togcrf.metrics``). This script runs a TOG
-checkpoint on test samples, takes every detection that claims an object
+object's ground-truth grasps (``togcrf.metrics``). This script runs a
+checkpoint (TOG, TOG-CRFs, or FCGN + Task without the rankings on the 7 x 7
+grid, ``GRID_RANKINGS``) on test samples, takes every detection that claims an object
 with grasps (same category, IoU > 0.5, best-scored first), and reports for
 each ranking of the 196 candidates the share whose first candidate matches
 a ground-truth grasp of the object, beside the share where any of the top 5
@@ -92,6 +93,9 @@ RANKINGS = {
     "smooth-cells-angles": lambda stability, tasks: neighbourhood_mean(stability, 1),
     "stability x task confidence": lambda stability, tasks: stability * tasks.max(axis=-1),
 }
+#: The rankings that read a detection's candidates as the "roi" branch's 7 x 7 x 4 grid; FCGN + Task's
+#: candidates (the most stable of the image's cells inside the box) have no such order, so they skip them.
+GRID_RANKINGS = ("smooth-cells", "smooth-cells-angles")
 
 
 def claimable(detections: Detections, truth: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
@@ -129,9 +133,10 @@ def landing(mask: np.ndarray, centres: np.ndarray, own_value: int) -> np.ndarray
 
 
 def tally(detections: Detections, truth: GroundTruth, mask: np.ndarray, object_indices: np.ndarray,
-          counts: dict[str, int], distances: dict[str, list[float]]) -> None:
-    """Add one image's hits of every ranking, and where the top-1 lands, to ``counts``; the top-1's distance
-    (px) to the nearest ground-truth grasp centre of its object to ``distances["match"]`` or ``["miss"]``."""
+          counts: dict[str, int], distances: dict[str, list[float]], rankings: dict = RANKINGS) -> None:
+    """Add one image's hits of each of ``rankings``, and where the top-1 lands, to ``counts``; the top-1's
+    distance (px) to the nearest ground-truth grasp centre of its object to ``distances["match"]`` or
+    ``["miss"]``."""
     for detection, target in claimed_objects(detections, truth):
         object_grasps = truth.grasp_rectangles[truth.grasp_objects == target]
         matches = grasp_match_matrix(detections.grasps[detection], object_grasps).any(axis=1)
@@ -142,7 +147,7 @@ def tally(detections: Detections, truth: GroundTruth, mask: np.ndarray, object_i
         where = landing(mask, detections.grasps[detection][:, :2], int(object_indices[target]) + 1)
         counts["objects"] += 1
         counts["any candidate"] += int(matches.any())
-        for name, rank in RANKINGS.items():
+        for name, rank in rankings.items():
             order = np.argsort(-rank(stability, detections.grasp_task_probs[detection]), kind="stable")
             counts[name] += int(matches[order[0]])
             counts[f"{name} top5"] += int(matches[order[:5]].any())
@@ -202,10 +207,21 @@ def table_figures(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, floa
     return {column: round(100.0 * float(result[column]), 1) for column in METRIC_COLUMNS}
 
 
-def table_rows(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, dict[str, float]]:
-    """Table II figures of each of ``TABLE_VARIANTS`` over the (detections, truth) pairs."""
+def table_rows(pairs: list[tuple[Detections, GroundTruth]], variants: dict = TABLE_VARIANTS,
+               ) -> dict[str, dict[str, float]]:
+    """Table II figures of each of ``variants`` over the (detections, truth) pairs."""
     return {name: table_figures([(variant(detections, truth), truth) for detections, truth in pairs])
-            for name, variant in TABLE_VARIANTS.items()}
+            for name, variant in variants.items()}
+
+
+def for_branch(grasp_branch: str) -> tuple[dict, dict]:
+    """The ``RANKINGS`` and ``TABLE_VARIANTS`` that apply to a model's grasp branch ("roi" or "image")."""
+    if grasp_branch == "roi":
+        return RANKINGS, TABLE_VARIANTS
+    rankings = {name: rank for name, rank in RANKINGS.items() if name not in GRID_RANKINGS}
+    variants = {name: variant for name, variant in TABLE_VARIANTS.items()
+                if not any(name.startswith(grid) for grid in GRID_RANKINGS)}
+    return rankings, variants
 
 
 def main() -> None:
@@ -219,8 +235,9 @@ def main() -> None:
     arguments = parser.parse_args()
     model, config = load_checkpoint(arguments.checkpoint, device="cpu")
     model.eval()
+    rankings, variants = for_branch(model.grasp_branch)
     counts: dict[str, int] = {"objects": 0, "any candidate": 0} | {
-        key: 0 for name in RANKINGS for key in (name, f"{name} top5")} | dict.fromkeys(
+        key: 0 for name in rankings for key in (name, f"{name} top5")} | dict.fromkeys(
         ("own-mask oracle", *LANDINGS), 0)
     distances: dict[str, list[float]] = {"match": [], "miss": []}
     pairs = []
@@ -230,7 +247,7 @@ def main() -> None:
         image, scale = depth_to_tensor(sample.depth, config.get("image_size"),
                                        config["depth_reference"])
         pairs.append((run_model(model, image, scale), GroundTruth.from_sample(sample)))
-        tally(*pairs[-1], sample.mask, sample.object_indices, counts, distances)
+        tally(*pairs[-1], sample.mask, sample.object_indices, counts, distances, rankings)
     objects = max(counts["objects"], 1)
     shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}
     print(f"{counts['objects']} claimed objects with grasps; share whose top-1 (top-5) grasp matches one of theirs, "
@@ -242,7 +259,7 @@ def main() -> None:
     for outcome, values in quartiles.items():
         print(f"  top-1 {outcome}es ({len(distances[outcome])}): distance to the nearest ground-truth grasp centre, "
               f"quartiles {values} px")
-    rows = table_rows(pairs)
+    rows = table_rows(pairs, variants)
     print(f"Table II figures of these {len(pairs)} samples (percent, our protocol):")
     for name, row in rows.items():
         print(f"  {name:34s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
