@@ -194,6 +194,8 @@ TABLE_VARIANTS = {
     "smooth-cells ranking": ranked_by("smooth-cells"),
     "score x top-1 stability": scored_by_top_grasp,
 }
+#: The variants that rank by one of ``GRID_RANKINGS`` (skipped for FCGN + Task, as those are).
+GRID_VARIANTS = ("smooth-cells ranking",)
 #: The metric columns of Table II (``togcrf.evaluate``'s, without the speed).
 METRIC_COLUMNS = TABLE_COLUMNS[:-1]
 
@@ -219,8 +221,7 @@ def for_branch(grasp_branch: str) -> tuple[dict, dict]:
     if grasp_branch == "roi":
         return RANKINGS, TABLE_VARIANTS
     rankings = {name: rank for name, rank in RANKINGS.items() if name not in GRID_RANKINGS}
-    variants = {name: variant for name, variant in TABLE_VARIANTS.items()
-                if not any(name.startswith(grid) for grid in GRID_RANKINGS)}
+    variants = {name: variant for name, variant in TABLE_VARIANTS.items() if name not in GRID_VARIANTS}
     return rankings, variants
 
 

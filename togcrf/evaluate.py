@@ -332,10 +332,9 @@ def run_seed(path: Path) -> int | None:
     """
     path = Path(path)
     folder = path if path.is_dir() else path.parent
-    candidates = [folder / "config.json"]
-    if not path.is_dir() and "-eval" in path.name:
-        candidates.insert(0, folder / f"{path.name.rsplit('-eval', 1)[0]}-config.json")
-    for config in candidates:
+    committed = not path.is_dir() and "-eval" in path.name
+    own = [folder / f"{path.name.rsplit('-eval', 1)[0]}-config.json"] if committed else []
+    for config in [*own, folder / "config.json"]:
         try:
             seed = json.loads(config.read_text()).get("seed")
         except (OSError, json.JSONDecodeError):
