@@ -184,6 +184,7 @@ def ranked_by(name: str) -> Callable[[Detections, GroundTruth], Detections]:
                 for stability, tasks in zip(detections.grasp_stability, detections.grasp_task_probs, strict=True)]
         return replace(detections, grasp_stability=np.asarray(keys).reshape(np.shape(detections.grasp_stability)))
 
+    variant.ranking = name  # read by for_branch
     return variant
 
 
@@ -194,8 +195,6 @@ TABLE_VARIANTS = {
     "smooth-cells ranking": ranked_by("smooth-cells"),
     "score x top-1 stability": scored_by_top_grasp,
 }
-#: The variants that rank by one of ``GRID_RANKINGS`` (skipped for FCGN + Task, as those are).
-GRID_VARIANTS = ("smooth-cells ranking",)
 #: The metric columns of Table II (``togcrf.evaluate``'s, without the speed).
 METRIC_COLUMNS = TABLE_COLUMNS[:-1]
 
@@ -217,11 +216,15 @@ def table_rows(pairs: list[tuple[Detections, GroundTruth]], variants: dict = TAB
 
 
 def for_branch(grasp_branch: str) -> tuple[dict, dict]:
-    """The ``RANKINGS`` and ``TABLE_VARIANTS`` that apply to a model's grasp branch ("roi" or "image")."""
+    """The ``RANKINGS`` and ``TABLE_VARIANTS`` that apply to a model's grasp branch ("roi" or "image").
+
+    The "image" branch (FCGN + Task) skips ``GRID_RANKINGS`` and the variants ranked by them (``ranked_by``).
+    """
     if grasp_branch == "roi":
         return RANKINGS, TABLE_VARIANTS
     rankings = {name: rank for name, rank in RANKINGS.items() if name not in GRID_RANKINGS}
-    variants = {name: variant for name, variant in TABLE_VARIANTS.items() if name not in GRID_VARIANTS}
+    variants = {name: variant for name, variant in TABLE_VARIANTS.items()
+                if getattr(variant, "ranking", None) not in GRID_RANKINGS}
     return rankings, variants
 
 
