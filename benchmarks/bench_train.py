@@ -13,11 +13,16 @@ invocation, so the ratio compares like with like on one machine:
   (C3-C5 in the FPN; RPN anchors of 16-128 px over four levels) at 192 px,
   with 12 px grasp anchors;
 - ``recipe``: ``togcrf.reproduce.CPU_SCALE`` (its model options, batch size,
-  image size, scale jitter and optimiser): since 2026-11-27 the ResNet
-  stops after C4 and the images are 160 px;
+  image size, scale jitter, optimiser and precision): since 2026-11-27 the
+  ResNet stops after C4 and the images are 160 px;
 - ``recipe-tv-roialign``: the recipe with torchvision's RoIAlign backward
   instead of :mod:`togcrf.roi_align`'s sparse one (``before`` runs
-  torchvision's too, as at 4bf0b66).
+  torchvision's too, as at 4bf0b66);
+- ``recipe-float32``: the recipe without its bfloat16 autocast (since
+  2026-11-28 the recipe's forward pass runs in bfloat16 on a CPU with
+  native bfloat16, ``togcrf train --cpu-bf16``; on any other CPU the
+  recipe runs in float32 and the two are the same configuration). Each
+  child's line names the precision it ran in.
 
 ``--only`` picks some of them (the ratios are printed for those present).
 
@@ -63,20 +68,23 @@ BEFORE_OPTIONS = {"fpn_norm": False, "grasp_trunk_norm": False, "fpn_min_stride"
 
 def configurations() -> dict[str, dict]:
     """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down", "optimizer", "lr",
-    "torchvision_roi_align"}."""
+    "torchvision_roi_align", "cpu_bf16"}."""
     from togcrf.reproduce import CPU_SCALE  # noqa: PLC0415
 
     recipe = {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
               "image_size": CPU_SCALE.image_size, "jitter_up": 0.0, "jitter_down": CPU_SCALE.scale_jitter,
-              "optimizer": CPU_SCALE.optimizer, "lr": CPU_SCALE.lr, "torchvision_roi_align": False}
-    until_2026_11_27 = {**recipe, "image_size": 192, "model_options": {
+              "optimizer": CPU_SCALE.optimizer, "lr": CPU_SCALE.lr, "torchvision_roi_align": False,
+              "cpu_bf16": CPU_SCALE.cpu_bf16}
+    until_2026_11_27 = {**recipe, "image_size": 192, "cpu_bf16": False, "model_options": {
         **recipe["model_options"], "fpn_max_stride": 32, "rpn_anchor_sizes": (16, 32, 64, 128),
         "grasp_anchor_size": 12.0}}
     return {
         "before": {"model_options": BEFORE_OPTIONS, "batch_size": 2, "image_size": 192, "jitter_up": 0.1,
-                   "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01, "torchvision_roi_align": True},
+                   "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01, "torchvision_roi_align": True,
+                   "cpu_bf16": False},
         "recipe-192-c5": until_2026_11_27,
         "recipe-tv-roialign": {**recipe, "torchvision_roi_align": True},
+        "recipe-float32": {**recipe, "cpu_bf16": False},
         "recipe": recipe,
     }
 
@@ -139,7 +147,7 @@ def child(arguments: argparse.Namespace) -> None:
     import torch  # noqa: PLC0415
 
     from togcrf.model import build_model  # noqa: PLC0415
-    from togcrf.train import TrainConfig, build_optimizer  # noqa: PLC0415
+    from togcrf.train import TrainConfig, build_optimizer, cpu_has_native_bfloat16  # noqa: PLC0415
 
     setting = configurations()[arguments.configuration]
     batches = _batches(arguments, setting, BATCHES)
@@ -149,10 +157,12 @@ def child(arguments: argparse.Namespace) -> None:
         use_torchvision_roi_align(model)
     model.train()
     optimizer = build_optimizer(model, TrainConfig(data="", out="", optimizer=setting["optimizer"], lr=setting["lr"]))
+    bfloat16 = setting["cpu_bf16"] and cpu_has_native_bfloat16()
 
     def step(index: int) -> None:
         images, targets, _ = batches[index % len(batches)]
-        losses = model(images, targets)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bfloat16):
+            losses = model(images, targets)
         optimizer.zero_grad()
         sum(losses.values()).backward()
         optimizer.step()
@@ -171,6 +181,7 @@ def child(arguments: argparse.Namespace) -> None:
         "batch_size": setting["batch_size"],
         "image_size": setting["image_size"],
         "threads": torch.get_num_threads(),
+        "precision": "bfloat16" if bfloat16 else "float32",
         "seconds_per_step": seconds / arguments.steps,
         "images_per_second": arguments.steps * setting["batch_size"] / seconds,
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -220,7 +231,8 @@ def main() -> None:
         return
     print(f"TOG training on the CPU, {arguments.backbone}, {arguments.steps} timed steps after "
           f"{arguments.warmup}, {'samples of ' + arguments.data if arguments.data else 'synthetic samples'}")
-    print(f"{'configuration':<20} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9}")
+    print(f"{'configuration':<20} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9} "
+          f"{'precision':>9}")
     results = {}
     for name in arguments.only or configurations():
         command = [sys.executable, __file__, "--configuration", name, "--backbone", arguments.backbone,
@@ -234,8 +246,8 @@ def main() -> None:
         result = results[name] = json.loads(completed.stdout.strip().splitlines()[-1])
         print(f"{name:<20} {result['batch_size']:>5} {result['seconds_per_step']:>8.2f} "
               f"{result['images_per_second']:>8.2f} {result['peak_rss_mib']:>13.0f} "
-              f"{result['parameters_millions']:>9.1f}")
-    for baseline in ("before", "recipe-192-c5", "recipe-tv-roialign"):
+              f"{result['parameters_millions']:>9.1f} {result['precision']:>9}")
+    for baseline in ("before", "recipe-192-c5", "recipe-tv-roialign", "recipe-float32"):
         if "recipe" in results and baseline in results:
             ratio = results["recipe"]["images_per_second"] / results[baseline]["images_per_second"]
             print(f"recipe / {baseline}: {ratio:.2f}x images per second")

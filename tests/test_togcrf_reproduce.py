@@ -23,6 +23,9 @@ def test_scales_and_the_cpu_recipe():
     config = CPU_SCALE.train_config("data", "runs/x", "tog", pipeline="recipe", device="cpu", seed=0, resume=False)
     config.validate()
     assert config.optimizer == "adamw" and config.lr_schedule == "cosine" and config.time_budget_minutes == 60
+    # bfloat16 where the CPU has it (togcrf.train falls back to float32 elsewhere); --no-cpu-bf16 overrides it
+    assert config.cpu_bf16 and not replace(CPU_SCALE, cpu_bf16=False).train_config(
+        "data", "runs/x", "tog", pipeline="recipe", device="cpu", seed=0, resume=False).cpu_bf16
     # the grasp anchors scale with the image from ROI-GD's 12 px at 192 px
     assert config.model_options["grasp_anchor_size"] == pytest.approx(12.0 * config.image_size / 192, abs=0.1)
 

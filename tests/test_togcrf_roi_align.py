@@ -85,3 +85,22 @@ def test_multiscale_pooling_matches_torchvisions_forward_and_backward() -> None:
     assert len(set(pool.map_levels(boxes).tolist())) > 1, "the boxes span several levels"
     for our_grad, expected_grad in zip(our_grads, expected_grads, strict=True):
         torch.testing.assert_close(our_grad, expected_grad, rtol=1e-10, atol=1e-10)
+
+
+def test_bfloat16_gradient_is_summed_in_float32_and_returned_as_bfloat16() -> None:
+    """Under CPU autocast (togcrf train --cpu-bf16) the gradient reaching RoIAlign is bfloat16; the sparse
+    product has no bfloat16 kernel, so it sums in float32 and hands back the gradient's own type."""
+    generator = torch.Generator().manual_seed(5)
+    features = torch.randn(2, 8, 20, 20, generator=generator).bfloat16()
+    rois = _rois(generator, 50, 2, 160.0)
+    ours = features.clone().requires_grad_()
+    with torch.autocast("cpu", dtype=torch.bfloat16):  # torchvision's forward pools in float32 under autocast
+        output = roi_align_fast_backward(ours, rois, (7, 7), 1 / 8, 2)
+    assert output.dtype == torch.bfloat16
+    grad_output = torch.randn(output.shape, generator=generator).bfloat16()
+    output.backward(grad_output)
+    reference = features.float().requires_grad_()
+    roi_align(reference, rois, (7, 7), 1 / 8, 2).backward(grad_output.float())
+    assert ours.grad.dtype == torch.bfloat16
+    assert reference.grad.abs().max() > 0
+    torch.testing.assert_close(ours.grad.float(), reference.grad, rtol=1e-2, atol=1e-2)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -22,7 +23,7 @@ from togcrf.cli import app
 from togcrf.data import SamplesDataset, collate
 from togcrf.metrics import right_tasks
 from togcrf.model import batch_images, build_model
-from togcrf.train import LOSS_TERMS, TrainConfig, train
+from togcrf.train import LOSS_TERMS, TrainConfig, cpu_has_native_bfloat16, train
 
 #: A small model that keeps CPU runs quick (see tests/test_togcrf_model.py).
 SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
@@ -372,6 +373,31 @@ def test_training_options_are_checked(data_dir, tmp_path):
                             ({"time_budget_minutes": -5.0}, "--time-budget -5.0")):
         with pytest.raises(ValueError, match=message):
             train(quick_config(data_dir, tmp_path / "run", max_samples=12, **change))
+
+
+def test_cpu_bf16_autocasts_where_the_cpu_has_bfloat16_and_says_so_where_not(data_dir, tmp_path, caplog):
+    """--cpu-bf16 runs the forward pass in bfloat16 on a CPU with AVX-512 BF16 or AMX (its losses then differ
+    from float32's in the third decimal) and stays float32 elsewhere, with a warning; config.json records
+    which precision ran, and the weights stay float32 either way."""
+    native = cpu_has_native_bfloat16()
+    train(quick_config(data_dir, tmp_path / "float32", model="tog-crfs"))
+    with caplog.at_level(logging.WARNING, logger="togcrf.train"):
+        train(quick_config(data_dir, tmp_path / "bf16", model="tog-crfs", cpu_bf16=True))
+    stored = json.loads((tmp_path / "bf16" / "config.json").read_text())
+    assert stored["cpu_bf16"] is True
+    assert stored["precision"] == ("bfloat16" if native else "float32")
+    assert json.loads((tmp_path / "float32" / "config.json").read_text())["precision"] == "float32"
+    assert ("no native bfloat16" in caplog.text) is not native
+    losses = [float(next(csv.DictReader((tmp_path / run / "metrics.csv").open()))["loss"])
+              for run in ("float32", "bf16")]
+    assert all(math.isfinite(loss) for loss in losses)
+    if native:
+        assert losses[0] != pytest.approx(losses[1], rel=1e-6, abs=1e-6)
+        assert losses[0] == pytest.approx(losses[1], rel=0.05)
+    else:
+        assert losses[0] == pytest.approx(losses[1], rel=1e-6, abs=1e-6)
+    weights = torch.load(tmp_path / "bf16" / "checkpoint.pt", weights_only=True)["model"]
+    assert all(value.dtype != torch.bfloat16 for value in weights.values())
 
 
 def test_cli_prints_progress_lines_off_a_terminal(data_dir, tmp_path):

@@ -72,6 +72,7 @@ class Scale:
     lr : float
         Base learning rate.
     optimizer, lr_schedule, weight_decay, clip_grad_norm, scale_jitter, val_samples, time_budget_minutes, workers
+    cpu_bf16
         As the ``togcrf.train.TrainConfig`` fields of those names.
     model_options : tuple of (str, value) pairs
         ``togcrf.model.ModelOptions`` overrides (a tuple, so that a scale is hashable and frozen).
@@ -93,6 +94,7 @@ class Scale:
     val_samples: int = 0
     time_budget_minutes: float | None = None
     workers: int = 0
+    cpu_bf16: bool = False
     model_options: tuple[tuple[str, Any], ...] = ()
 
     def train_config(self, data_dir: Path, run_dir: Path, model: str, *, pipeline: str | None, device: str,
@@ -107,7 +109,7 @@ class Scale:
                            optimizer=self.optimizer, lr_schedule=self.lr_schedule, weight_decay=self.weight_decay,
                            clip_grad_norm=self.clip_grad_norm, scale_jitter=self.scale_jitter,
                            val_samples=self.val_samples, time_budget_minutes=self.time_budget_minutes,
-                           workers=self.workers, model_options=dict(self.model_options))
+                           workers=self.workers, cpu_bf16=self.cpu_bf16, model_options=dict(self.model_options))
 
 
 #: The paper's setting (Section V: 10 epochs; Section IV-B: ResNet-101).
@@ -133,10 +135,11 @@ CPU_MODEL_OPTIONS = (
 #: The CPU recipe: one hour of training per model on 2 cores, ResNet-18 (up to C4) from scratch at 160 px,
 #: AdamW with a cosine schedule, on every training sample of the data dir (the recipe's data is
 #: pipelines/recipe.toml), a 64-sample validation slice for the learning curves. Until 2026-11-27 it ran
-#: the whole ResNet-18 at 192 px (benchmarks/bench_train.py ``recipe-192-c5``).
+#: the whole ResNet-18 at 192 px (benchmarks/bench_train.py ``recipe-192-c5``). Since 2026-11-28 its forward
+#: pass runs under bfloat16 autocast on a CPU with native bfloat16 (``cpu_bf16``; float32 on any other CPU).
 CPU_SCALE = Scale("resnet18", 50, 160, None, None, 4, warmup_steps=200, lr=0.001, optimizer="adamw",
                   lr_schedule="cosine", weight_decay=1e-4, clip_grad_norm=10.0, scale_jitter=0.15,
-                  val_samples=64, time_budget_minutes=60.0, model_options=CPU_MODEL_OPTIONS)
+                  val_samples=64, time_budget_minutes=60.0, cpu_bf16=True, model_options=CPU_MODEL_OPTIONS)
 
 
 #: The GPU recipe (issue #21): the CPU recipe's training (AdamW, a cosine over a time budget, GroupNorm,
@@ -269,6 +272,9 @@ def reproduce_command(
         help="Override the DataLoader worker processes (0: load in the training process).")] = None,
     time_budget: Annotated[float | None, typer.Option(
         help="Override the minutes of training per model (0: none, the epochs decide).")] = None,
+    cpu_bf16: Annotated[bool | None, typer.Option(
+        "--cpu-bf16/--no-cpu-bf16",
+        help="Override the scale's bfloat16 autocast on a CPU with native bfloat16 (togcrf train --cpu-bf16).")] = None,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
     seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
     speed_images: Annotated[int, typer.Option(help="Images timed for the speed column.")] = 10,
@@ -277,7 +283,7 @@ def reproduce_command(
     try:
         chosen = resolve_scale(scale)
         overrides = {"epochs": epochs, "backbone": backbone, "batch_size": batch_size, "warmup_steps": warmup_steps,
-                     "lr": lr, "workers": workers}
+                     "lr": lr, "workers": workers, "cpu_bf16": cpu_bf16}
         chosen = replace(chosen, **{key: value for key, value in overrides.items() if value is not None})
         for name, value in (("image_size", image_size), ("max_samples", max_samples),
                             ("eval_max_samples", eval_max_samples), ("time_budget_minutes", time_budget)):

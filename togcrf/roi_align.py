@@ -113,6 +113,11 @@ def _corners(coordinate: Tensor, size: int) -> tuple[Tensor, Tensor, Tensor]:
     return low, high, torch.where(at_edge, low.to(coordinate.dtype), coordinate)
 
 
+def _summation_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The type the sparse product sums in: the gradient's, but float32 for a half-precision gradient."""
+    return torch.float32 if dtype in (torch.bfloat16, torch.float16) else dtype
+
+
 def _features_gradient(
     grad_output: Tensor, rois: Tensor, feature_shape: torch.Size, spatial_scale: float, sampling_ratio: int,
 ) -> Tensor:
@@ -126,13 +131,15 @@ def _features_gradient(
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
         transposed = torch.sparse_csr_tensor(
-            row_starts, cells[order], weights[order].to(grad_output.dtype),
+            row_starts, cells[order], weights[order].to(_summation_dtype(grad_output.dtype)),
             (batch_size * height * width, grad_output.shape[0] * output_size[0] * output_size[1]),
             check_invariants=False,
         )
-    rows = grad_output.permute(0, 2, 3, 1).reshape(-1, channels)
+    # the sparse product has no bfloat16 kernel on the CPU: a bfloat16 gradient (autocast) is summed in float32
+    rows = grad_output.permute(0, 2, 3, 1).reshape(-1, channels).to(transposed.dtype)
     gradient = transposed @ rows
-    return gradient.reshape(batch_size, height, width, channels).permute(0, 3, 1, 2).contiguous()
+    gradient = gradient.reshape(batch_size, height, width, channels).permute(0, 3, 1, 2)
+    return gradient.to(grad_output.dtype).contiguous()
 
 
 class _RoIAlignSparseBackward(torch.autograd.Function):
