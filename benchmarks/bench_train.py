@@ -147,7 +147,7 @@ def child(arguments: argparse.Namespace) -> None:
     import torch  # noqa: PLC0415
 
     from togcrf.model import build_model  # noqa: PLC0415
-    from togcrf.train import TrainConfig, build_optimizer, cpu_has_native_bfloat16  # noqa: PLC0415
+    from togcrf.train import TrainConfig, build_optimizer, mixed_precision, precision_name  # noqa: PLC0415
 
     setting = configurations()[arguments.configuration]
     batches = _batches(arguments, setting, BATCHES)
@@ -156,12 +156,14 @@ def child(arguments: argparse.Namespace) -> None:
     if setting["torchvision_roi_align"]:
         use_torchvision_roi_align(model)
     model.train()
-    optimizer = build_optimizer(model, TrainConfig(data="", out="", optimizer=setting["optimizer"], lr=setting["lr"]))
-    bfloat16 = setting["cpu_bf16"] and cpu_has_native_bfloat16()
+    config = TrainConfig(data="", out="", optimizer=setting["optimizer"], lr=setting["lr"],
+                         cpu_bf16=setting["cpu_bf16"])
+    optimizer = build_optimizer(model, config)
+    use_amp, amp_dtype = mixed_precision(config, torch.device("cpu"))
 
     def step(index: int) -> None:
         images, targets, _ = batches[index % len(batches)]
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bfloat16):
+        with torch.autocast("cpu", dtype=amp_dtype, enabled=use_amp):
             losses = model(images, targets)
         optimizer.zero_grad()
         sum(losses.values()).backward()
@@ -181,7 +183,7 @@ def child(arguments: argparse.Namespace) -> None:
         "batch_size": setting["batch_size"],
         "image_size": setting["image_size"],
         "threads": torch.get_num_threads(),
-        "precision": "bfloat16" if bfloat16 else "float32",
+        "precision": precision_name(config, torch.device("cpu")),
         "seconds_per_step": seconds / arguments.steps,
         "images_per_second": arguments.steps * setting["batch_size"] / seconds,
         "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,

@@ -358,14 +358,14 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     if config.init:
         _load_initial_weights(model, Path(config.init), device)
     stored_config = {**asdict(config), "model_options": _model_options(model, config),
-                     "precision": _precision_name(config, device)}
+                     "precision": precision_name(config, device)}
     if config.cpu_bf16 and device.type == "cpu" and stored_config["precision"] == "float32":
         logger.warning("--cpu-bf16: this CPU has no native bfloat16 (AVX-512 BF16 or AMX); training in float32")
     optimizer = build_optimizer(model, config)
     cosine_steps = config.epochs * len(loader) if config.lr_schedule == "cosine" else None
     scheduler = torch.optim.lr_scheduler.LambdaLR(
         optimizer, WarmupSchedule(config.warmup_steps, len(loader), config.lr_decay_epochs, cosine_steps))
-    use_amp, amp_dtype = _mixed_precision(config, device)
+    use_amp, amp_dtype = mixed_precision(config, device)
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
     run = _Run(config, device, model, optimizer, scheduler, loader, dataset, sampler, validation_samples,
                context, distributed.wrap(model, context, device), scaler)
@@ -426,7 +426,7 @@ def cpu_has_native_bfloat16() -> bool:
     return any(bool(getattr(torch.cpu, probe, lambda: False)()) for probe in probes)
 
 
-def _mixed_precision(config: TrainConfig, device: torch.device) -> tuple[bool, torch.dtype]:
+def mixed_precision(config: TrainConfig, device: torch.device) -> tuple[bool, torch.dtype]:
     """Whether the forward pass runs under autocast, and in which type.
 
     CUDA with ``amp``: bfloat16 where supported, else float16 (with loss
@@ -439,9 +439,9 @@ def _mixed_precision(config: TrainConfig, device: torch.device) -> tuple[bool, t
     return use_amp, torch.bfloat16
 
 
-def _precision_name(config: TrainConfig, device: torch.device) -> str:
+def precision_name(config: TrainConfig, device: torch.device) -> str:
     """The precision a run's forward pass computes in: float32, bfloat16 or float16."""
-    use_amp, amp_dtype = _mixed_precision(config, device)
+    use_amp, amp_dtype = mixed_precision(config, device)
     return str(amp_dtype).removeprefix("torch.") if use_amp else "float32"
 
 
@@ -449,7 +449,7 @@ def train_one_epoch(run: _Run, epoch: int, progress: Callable[[Progress], None] 
                     writer: Any = None) -> dict[str, Any]:
     """One pass over the training data; the epoch's metrics row (losses averaged over its steps)."""
     config, model, optimizer = run.config, run.model, run.optimizer
-    use_amp, amp_dtype = _mixed_precision(config, run.device)
+    use_amp, amp_dtype = mixed_precision(config, run.device)
     scaler = run.scaler
     model.train()
     run.dataset.set_epoch(epoch)
