@@ -3,7 +3,7 @@
 # grasp, pipelines/recipe-dense.toml), two seeds per arm, at an epoch budget towards the image count of the
 # 60-minute recipe on a 2-core AMD EPYC (16,800 images): EPOCHS (default 7: 12,110 images) of the 1,730 training
 # images, the cosine over those steps, the four jobs side by side on one GPU. Each evaluated on the recipe's test
-# split (the paper's ground truth) under both protocols, and with every usable grasp (eval-on-dense.json).
+# split (the recipe's ground truth) under both protocols, and with every usable grasp (eval-on-dense.json).
 #
 # On the device machine, with the offline kit (.gpu/, pipelines/gpu-offline-kit.sh) and the recipe's models,
 # grasps, checks and scenes shards built on the 2-core machine carried (same keys and bytes); the samples are

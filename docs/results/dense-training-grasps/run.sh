@@ -1,7 +1,7 @@
 #!/bin/bash
 # Issue #15: TOG trained on the recipe's grasps (the paper's suppression, 3.9 grasps per object) against the same
 # piles and images with every usable grasp (pipelines/recipe-dense.toml, 18 per object); both evaluated on the
-# recipe's test split (the paper's ground truth, eval.json) and on the same images with every usable grasp
+# recipe's test split (the recipe's ground truth, eval.json) and on the same images with every usable grasp
 # (eval-on-dense.json). Side by side, one thread each, 40 minutes of training steps each, seed 0, on a 2-core
 # AMD EPYC (2026-11-25; about 2.3 images/s each, 3.4 epochs). The run of 2026-11-25 named the dense data
 # "recipe-nms0" (`osgd run pipelines/recipe.toml --set pipeline.name=recipe-nms0 --set samples.nms_radius=0`):
