@@ -5,9 +5,10 @@ Usage::
     python docs/results/ground-truth-collision-2026-11-28/misses.py CHECKPOINT OUT.png [SAMPLES]
 
 For each of the first SAMPLES (6) test samples of the ``recipe`` pipeline in ``data/``, the checkpoint's
-detections with a score of at least 0.5 that overlap an annotated object (box IoU > 0.5) get their most stable
-grasp drawn: red where it matches one of that object's ground-truth grasps (the mAP-G rule,
-:func:`togcrf.metrics.grasp_match_matrix`), magenta where it does not. Thin green: the recipe's ground truth;
+detections with a score of at least 0.5 that claim an object with grasps (the rule of
+``benchmarks/grasp_ranking.py``, ``claimed_objects``) get their most stable grasp drawn: red where it matches
+one of that object's ground-truth grasps (the mAP-G rule, :func:`togcrf.metrics.grasp_match_matrix`), magenta
+where it does not. Thin green: the recipe's ground truth;
 thin yellow: the grasps of ``recipe-nocollide`` (the same image without the gripper-collision filter). The picture
 shows the noise-free depth; the model sees the noisy one. Prints
 how many objects were claimed and how many top-1 grasps match either ground truth.
@@ -16,13 +17,14 @@ how many objects were claimed and how many top-1 grasps match either ground trut
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from osgd.contract.samples import Sample, iter_samples
 from togcrf.checkpoint import load_checkpoint
-from togcrf.metrics import box_iou, grasp_match_matrix, rectangle_corners
+from togcrf.metrics import GroundTruth, grasp_match_matrix, rectangle_corners
 from togcrf.predict import keep_confident, predict_depth
 
 ZOOM = 1.5
@@ -43,6 +45,8 @@ def draw(picture: np.ndarray, rectangle: np.ndarray, colour: tuple[int, int, int
 
 
 def tile(model: object, config: dict, sample: Sample, other: Sample, counts: np.ndarray) -> np.ndarray:
+    from grasp_ranking import claimed_objects  # noqa: PLC0415 (benchmarks/, put on the path by main)
+
     picture = depth_picture(sample.depth_clean)
     for rectangle in other.grasp_rectangles:
         draw(picture, rectangle, YELLOW, 1)
@@ -50,26 +54,21 @@ def tile(model: object, config: dict, sample: Sample, other: Sample, counts: np.
         draw(picture, rectangle, GREEN, 2)
     detections = keep_confident(predict_depth(model, sample.depth, config["image_size"],
                                               depth_reference=config.get("depth_reference", "table")), 0.5)
-    if not len(detections.scores):
-        return picture
-    overlap = box_iou(detections.boxes, sample.boxes)
-    for row in range(len(detections.scores)):
-        claimed = int(np.argmax(overlap[row]))
-        if overlap[row, claimed] <= 0.5:
-            continue
-        top = detections.grasps[row][int(np.argmax(detections.grasp_stability[row]))][None]
-        matches = [bool(len(truth)) and bool(grasp_match_matrix(top, truth).any()) for truth in
-                   (sample.grasp_rectangles[sample.grasp_objects == claimed],
-                    other.grasp_rectangles[other.grasp_objects == claimed])]
+    truths = (GroundTruth.from_sample(sample), GroundTruth.from_sample(other))
+    for detection, claimed in claimed_objects(detections, truths[0]):
+        top = detections.grasps[detection][int(np.argmax(detections.grasp_stability[detection]))][None]
+        matches = [bool(grasp_match_matrix(top, truth.grasp_rectangles[truth.grasp_objects == claimed]).any())
+                   for truth in truths]
         counts += [1, *matches]
         draw(picture, top[0], RED if matches[0] else MAGENTA, 3)
-        x, y = (detections.boxes[row][:2] * ZOOM).astype(int)
+        x, y = (detections.boxes[detection][:2] * ZOOM).astype(int)
         cv2.putText(picture, sample.categories[claimed], (x, max(y, 12)), cv2.FONT_HERSHEY_SIMPLEX, 0.5, CYAN, 1)
     return picture
 
 
 def main() -> None:
     checkpoint, out = sys.argv[1], sys.argv[2]
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
     count = int(sys.argv[3]) if len(sys.argv) > 3 else 6
     model, config = load_checkpoint(checkpoint)
     others = {sample.sample_id: sample for sample in iter_samples("data", "recipe-nocollide", split="test")}
