@@ -218,7 +218,9 @@ def handed_out(pairs: list[tuple[Detections, GroundTruth]], key: DetectionKey,
 
 
 def top1_matches(detections: Detections, truth: GroundTruth, may_claim: np.ndarray, detection: int) -> float:
-    """1.0 when the detection's top-1 candidate matches a grasp of an object it may claim, else 0.0."""
+    """1.0 if the top-1 candidate matches a grasp of an object the detection may claim; else (or with none) 0.0."""
+    if len(detections.grasp_stability[detection]) == 0:
+        return 0.0
     top = int(np.argmax(detections.grasp_stability[detection]))
     return float(matching_candidates(detections, truth, may_claim, detection)[top])
 
