@@ -58,6 +58,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from itertools import islice
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -65,9 +66,9 @@ import torch
 from osgd.contract.samples import iter_samples, sample_shards
 from togcrf.anchors import ANCHOR_ANGLES, GRID
 from togcrf.checkpoint import load_checkpoint
-from togcrf.data import depth_to_tensor
-from togcrf.evaluate import TABLE_COLUMNS, run_model
+from togcrf.evaluate import TABLE_COLUMNS
 from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, box_iou, grasp_match_matrix
+from togcrf.predict import predict_depth
 
 #: IoU a detection needs with an object of its category to claim it (mAP's rule).
 CLAIM_IOU = 0.5
@@ -105,6 +106,13 @@ RANKINGS = {
 #: The rankings that read a detection's candidates as the "roi" branch's 7 x 7 x 4 grid; FCGN + Task's
 #: candidates (the most stable of the image's cells inside the box) have no such order, so they skip them.
 GRID_RANKINGS = ("smooth-cells", "smooth-cells-angles")
+
+
+def detect(model: torch.nn.Module, config: dict, sample: Any) -> tuple[Detections, GroundTruth]:
+    """A checkpoint's detections on one sample (``togcrf.predict.predict_depth``) and the sample's truth."""
+    detections = predict_depth(model, sample.depth, config.get("image_size"),
+                               depth_reference=config["depth_reference"])
+    return detections, GroundTruth.from_sample(sample)
 
 
 def claimable(detections: Detections, truth: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
@@ -303,9 +311,7 @@ def main() -> None:
     samples = iter_samples(arguments.data, split=arguments.split,
                            shards=sample_shards(arguments.data, arguments.pipeline))
     for sample in islice(samples, arguments.max_samples):
-        image, scale = depth_to_tensor(sample.depth, config.get("image_size"),
-                                       config["depth_reference"])
-        pairs.append((run_model(model, image, scale), GroundTruth.from_sample(sample)))
+        pairs.append(detect(model, config, sample))
         tally(*pairs[-1], sample.mask, sample.object_indices, counts, distances, rankings)
     objects = max(counts["objects"], 1)
     shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}

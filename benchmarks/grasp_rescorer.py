@@ -45,13 +45,12 @@ import torch
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from grasp_ranking import claimed_objects, grasp_oracle, table_figures
+from grasp_ranking import claimed_objects, detect, grasp_oracle, table_figures
 
 from osgd.contract.samples import iter_samples, sample_shards
 from osgd.contract.taxonomy import CATEGORIES
 from togcrf.checkpoint import load_checkpoint
-from togcrf.data import depth_to_tensor, normalise_depth
-from togcrf.evaluate import run_model
+from togcrf.data import normalise_depth
 from togcrf.metrics import Detections, GroundTruth, grasp_match_matrix
 
 LOG = logging.getLogger("grasp_rescorer")
@@ -122,9 +121,7 @@ def collect(model: torch.nn.Module, config: dict, samples, top_k: int, keep_imag
     """Run the detector on ``samples`` and cut the crops of the top-K candidates of each claimed detection."""
     collected = Collected([], [], [], [])
     for index, sample in enumerate(samples):
-        image, scale = depth_to_tensor(sample.depth, config.get("image_size"), config["depth_reference"])
-        detections = run_model(model, image, scale)
-        truth = GroundTruth.from_sample(sample)
+        detections, truth = detect(model, config, sample)
         height = normalise_depth(sample.depth, config["depth_reference"]) * HEIGHT_SCALE
         for detection, target in claimed_objects(detections, truth):
             order = np.argsort(-detections.grasp_stability[detection], kind="stable")[:top_k]

@@ -30,12 +30,10 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
-from grasp_ranking import claimable, handed_out, order_oracle, table_figures, top1_matches
+from grasp_ranking import claimable, detect, handed_out, order_oracle, table_figures, top1_matches
 
 from osgd.contract.samples import iter_samples, sample_shards
 from togcrf.checkpoint import load_checkpoint
-from togcrf.data import depth_to_tensor
-from togcrf.evaluate import run_model
 from togcrf.metrics import Detections, GroundTruth
 
 Pairs = list[tuple[Detections, GroundTruth]]
@@ -47,10 +45,8 @@ def detections_of(checkpoint: Path, data: Path, pipeline: str | None, cache: Pat
         return pickle.loads(cache.read_bytes())
     model, config = load_checkpoint(checkpoint, device="cpu")
     model.eval()
-    pairs = []
-    for sample in iter_samples(data, split="test", shards=sample_shards(data, pipeline)):
-        image, scale = depth_to_tensor(sample.depth, config.get("image_size"), config["depth_reference"])
-        pairs.append((run_model(model, image, scale), GroundTruth.from_sample(sample)))
+    pairs = [detect(model, config, sample)
+             for sample in iter_samples(data, split="test", shards=sample_shards(data, pipeline))]
     if cache is not None:
         cache.write_bytes(pickle.dumps(pairs))
     return pairs
