@@ -291,11 +291,29 @@ def for_branch(grasp_branch: str) -> tuple[dict, dict]:
     return rankings, variants
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def checkpoint_parser(doc: str, pipeline: str | None = None) -> argparse.ArgumentParser:
+    """The arguments of this script and of the diagnostics that import it: a checkpoint, ``--data``, ``--pipeline``."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n", maxsplit=1)[0])
     parser.add_argument("checkpoint", type=Path)
     parser.add_argument("--data", type=Path, default=Path("data"))
-    parser.add_argument("--pipeline", default=None)
+    parser.add_argument("--pipeline", default=pipeline)
+    return parser
+
+
+def table_line(name: str, row: dict[str, float], width: int = 34) -> str:
+    """One printed line of Table II figures (percent): the variant's name, then each column and its value."""
+    return f"  {name:{width}s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items())
+
+
+def print_variants(variants: dict[str, list[tuple[Detections, GroundTruth]]], width: int) -> None:
+    """Print the Table II figures (our protocol) of each variant of the same test samples' detections."""
+    print(f"Table II figures of {len(next(iter(variants.values())))} test samples (percent, our protocol):")
+    for name, pairs in variants.items():
+        print(table_line(name, table_figures(pairs), width))
+
+
+def main() -> None:
+    parser = checkpoint_parser(__doc__)
     parser.add_argument("--split", default="test")
     parser.add_argument("--max-samples", type=int, default=100)
     parser.add_argument("--json", type=Path, default=None, help="also write the shares here")
@@ -327,7 +345,7 @@ def main() -> None:
     rows = table_rows(pairs, variants) | {"order oracle": table_figures(order_oracle(pairs))}
     print(f"Table II figures of these {len(pairs)} samples (percent, our protocol):")
     for name, row in rows.items():
-        print(f"  {name:34s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
+        print(table_line(name, row))
     if arguments.json:
         arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "objects": counts["objects"],
                                               "shares_percent": shares,

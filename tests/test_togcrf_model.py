@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from helpers import write_synthetic_samples
@@ -16,9 +18,12 @@ from togcrf.model import (
     MODELS,
     PAPER_NAMES,
     GraspDetector,
+    GraspOutputs,
     build_model,
     object_map_targets,
     padded_object_grasps,
+    rescored,
+    top_grasp_right,
 )
 
 #: A small configuration that keeps CPU tests quick.
@@ -58,7 +63,7 @@ def test_the_registry_gives_table_two_its_rows_and_every_module_its_names():
     assert reproduce.TABLE_MODELS is MODEL_NAMES and evaluate.PAPER_NAMES is PAPER_NAMES
     # The losses, in the order of the columns of metrics.csv.
     assert LOSS_KEYS == ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability",
-                         "grasp_regression", "grasp_task", "grasp_object_map")
+                         "grasp_regression", "grasp_task", "grasp_object_map", "grasp_confidence")
     assert train.LOSS_TERMS is LOSS_KEYS
 
 
@@ -233,3 +238,70 @@ def test_the_object_map_trains_and_weighs_the_stability_of_each_cell(batch):
     assert stabilities[-20.0].max() < 1e-6 < stabilities[20.0].min()
     with pytest.raises(ValueError, match="roi"):
         build_model("fcgn-task", "resnet18", grasp_object_map=True, **SMALL)
+
+
+def one_candidate_outputs(top_candidates: list[int]) -> GraspOutputs:
+    """GraspOutputs of RoIs of 196 candidates, zero deltas, anchors of 10 x 10 px at angle 0 centred on
+    (candidate, 0), each RoI's most stable candidate the one of ``top_candidates``."""
+    rois = len(top_candidates)
+    anchors = torch.zeros(rois, CANDIDATES_PER_ROI, 5)
+    anchors[..., 0] = torch.arange(CANDIDATES_PER_ROI, dtype=torch.float32) * 20
+    anchors[..., 2:4] = 10.0
+    stability = torch.zeros(rois, CANDIDATES_PER_ROI, 2)
+    stability[torch.arange(rois), torch.tensor(top_candidates, dtype=torch.long), 1] = 5.0
+    return GraspOutputs(torch.zeros(rois, CANDIDATES_PER_ROI, 5), stability,
+                        torch.zeros(rois, CANDIDATES_PER_ROI, 12), anchors)
+
+
+def test_the_confidence_target_is_whether_the_top_candidate_matches_a_grasp_of_the_rois_own_object():
+    # RoI 0: its top-1 lies on its object's grasp. RoI 1: its top-1 lies on RoI 0's object's grasp, its own
+    # object's grasp is under another candidate. RoI 2: top-1 on its own grasp but turned 40 degrees away.
+    outputs = one_candidate_outputs([3, 3, 7])
+    owner_grasps = torch.tensor([[[60.0, 0, 10, 10, 0], [0, 0, 0, 0, 0]],
+                                 [[100.0, 0, 10, 10, 0], [0, 0, 0, 0, 0]],
+                                 [[140.0, 1, 10, 10, 0.7], [400.0, 0, 10, 10, 0]]])
+    valid = torch.tensor([[True, False], [True, False], [True, True]])
+    assert top_grasp_right(outputs, owner_grasps, valid).tolist() == [1.0, 0.0, 0.0]
+    owner_grasps[2, 0, 4] = 0.3  # 17 degrees: within the 30-degree tolerance
+    assert top_grasp_right(outputs, owner_grasps, valid).tolist() == [1.0, 0.0, 1.0]
+    assert top_grasp_right(one_candidate_outputs([]), owner_grasps[:0], valid[:0]).shape == (0,)
+
+
+def test_rescored_detections_keep_their_class_scores():
+    class_scores = torch.tensor([0.9, 0.5])
+    detections = [{"boxes": torch.zeros(2, 4), "scores": class_scores.clone()}, {"scores": torch.zeros(0)}]
+    out = rescored(detections, (torch.tensor([0.5, 1.0]), torch.zeros(0)))
+    assert torch.allclose(out[0]["scores"], torch.tensor([0.45, 0.5]))
+    assert torch.equal(out[0]["class_scores"], class_scores) and torch.equal(detections[0]["scores"], class_scores)
+    assert out[1]["scores"].shape == (0,)
+
+
+def test_the_confidence_head_trains_apart_and_multiplies_the_detection_scores(batch):
+    torch.manual_seed(0)
+    images, targets, _ = batch
+    model = build_model("tog", "resnet18", grasp_confidence=True, box_score_threshold=0.0, **SMALL)
+    model.train()
+    losses = model(images, targets)
+    assert torch.isfinite(losses["grasp_confidence"]) and losses["grasp_confidence"] > 0
+    losses["grasp_confidence"].backward()
+    head = model.grasp_head
+    assert float(head.confidence.conv.weight.grad.abs().sum()) > 0
+    # its inputs are detached: the loss reaches no other layer
+    assert all(parameter.grad is None for name, parameter in model.named_parameters()
+               if not name.startswith("grasp_head.confidence"))
+    model.eval()
+    with torch.no_grad():
+        head.confidence.logit.weight.zero_()
+        head.confidence.logit.bias.fill_(math.log(3.0))  # P = 0.75
+        outputs = model(images)
+    assert sum(len(output["scores"]) for output in outputs) > 0
+    for output in outputs:
+        assert torch.allclose(output["scores"], 0.75 * output["class_scores"])
+    with pytest.raises(ValueError, match="grasp_confidence needs RoIs"):
+        build_model("fcgn-task", "resnet18", grasp_confidence=True, **SMALL)
+    # trained end to end, the confidence loss reaches the grasp trunk and the backbone too
+    model = build_model("tog", "resnet18", grasp_confidence=True, grasp_confidence_trains_features=True, **SMALL)
+    model.train()
+    model(images, targets)["grasp_confidence"].backward()
+    assert float(model.grasp_head.blocks[0].conv1.weight.grad.abs().sum()) > 0
+    assert model.backbone.body.conv1.weight.grad is not None

@@ -133,6 +133,28 @@ def test_init_starts_from_the_weights_of_another_run(data_dir, tmp_path):
         train(quick_config(data_dir, tmp_path / "missing", model="tog", init=str(tmp_path / "nothing.pt")))
 
 
+def test_train_only_trains_a_new_layer_on_a_frozen_checkpoint(data_dir, tmp_path):
+    train(quick_config(data_dir, tmp_path / "source", model="tog"))
+    weights = torch.load(tmp_path / "source" / "checkpoint.pt", weights_only=True)["model"]
+    head = quick_config(data_dir, tmp_path / "head", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
+                        model_options={**SMALL, "grasp_confidence": True}, train_only=["grasp_head.confidence"],
+                        lr=0.1, warmup_steps=0)
+    train(head)
+    trained = torch.load(tmp_path / "head" / "checkpoint.pt", weights_only=True)["model"]
+    assert all(torch.equal(trained[name], value) for name, value in weights.items())
+    new = [name for name in trained if name.startswith("grasp_head.confidence")]
+    assert new and not set(new) & set(weights)
+    torch.manual_seed(0)  # the run's seed: its new layers start as this model's
+    initial = build_model("tog", "resnet18", **SMALL, grasp_confidence=True).state_dict()
+    assert any(not torch.equal(trained[name], initial[name]) for name in new)
+    # without --train-only naming them, new layers are still an error
+    with pytest.raises(ValueError, match=r"--init .*layers differ"):
+        train(quick_config(data_dir, tmp_path / "all", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
+                           model_options={**SMALL, "grasp_confidence": True}))
+    with pytest.raises(ValueError, match=r"--train-only nothing\.here: no parameter"):
+        train(quick_config(data_dir, tmp_path / "none", model="tog", train_only=["nothing.here"]))
+
+
 @pytest.mark.parametrize(("model_name", "terms"), [("tog", None), ("tog-crfs-omega", (True, False)),
                                                     ("tog-crfs-mu", (False, True)), ("tog-crfs", (True, True))])
 def test_every_variant_of_table_ii_trains_on_rendered_samples(golden_dir, tmp_path, model_name, terms):
@@ -228,7 +250,7 @@ def fitted_fractions(data_dir, run_dir, samples: int, pipeline: str = "synthetic
     with torch.no_grad():
         outputs = model(images)
         image_list = batch_images(images)
-        regression, stability, task_log_probs, anchors, _ = model.grasp_outputs(
+        regression, stability, task_log_probs, anchors, *_ = model.grasp_outputs(
             model.backbone(image_list.tensors), [target["boxes"] for target in targets], image_list.image_sizes)
     true_box_rectangles = decode(regression, anchors)
     true_box_stability = stability.softmax(dim=-1)[..., 1]

@@ -9,7 +9,10 @@
   log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG);
 - object map (``ModelOptions.grasp_object_map``; zero without it): binary
   cross entropy of each RoI cell's "on the RoI's own object" logit against
-  the share of the cell that the object's instance mask covers.
+  the share of the cell that the object's instance mask covers;
+- confidence (``ModelOptions.grasp_confidence``; zero without it): binary
+  cross entropy of each RoI's "my top-1 candidate is right" logit against
+  whether it is (``togcrf.model.top_grasp_right``).
 
 The RPN and RCNN losses are torchvision's (``togcrf.model``). ``LOSS_KEYS``
 are the names of the losses every model returns in train mode, defined here
@@ -27,7 +30,7 @@ DEFAULT_NEGATIVE_RATIO = 3
 #: The losses of a model in train mode, in the order of the columns of metrics.csv (``togcrf.train``): RPN
 #: objectness and box, RCNN class and box, then the grasp branch's (``GRASP_LOSS_KEYS``).
 LOSS_KEYS = ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
-             "grasp_task", "grasp_object_map")
+             "grasp_task", "grasp_object_map", "grasp_confidence")
 
 #: The losses of :func:`grasp_losses`: stability, regression, task.
 GRASP_LOSS_KEYS = LOSS_KEYS[4:7]
@@ -149,21 +152,20 @@ def grasp_losses(
     return dict(zip(GRASP_LOSS_KEYS, (stability, regression_loss, task), strict=True))
 
 
-def object_map_loss(logits: torch.Tensor | None, targets: torch.Tensor | None,
-                    reference: torch.Tensor) -> torch.Tensor:
-    """Binary cross entropy of the cells' "own object" logits; zero without them.
+def binary_loss(logits: torch.Tensor | None, targets: torch.Tensor | None, reference: torch.Tensor) -> torch.Tensor:
+    """Binary cross entropy of an optional output (the object map's cells, the top-1 confidence); zero without it.
 
     Parameters
     ----------
-    logits, targets : (R, C) float or None
-        Per RoI cell; targets in [0, 1]. None: the model has no object map.
+    logits, targets : (R, ...) float or None
+        Targets in [0, 1]. None: the model has no such output.
     reference : tensor
-        Any output of the step: the zero of a model without an object map is made on its device.
+        Any output of the step: the zero of a model without the output is made on its device.
     """
     if logits is None or targets is None:
         return reference.new_zeros((), dtype=torch.float32)
     if logits.numel() == 0:
-        return logits.float().sum() * 0  # no RoI: a zero that keeps the map's parameters in the graph
+        return logits.float().sum() * 0  # no RoI: a zero that keeps the output's parameters in the graph
     return functional.binary_cross_entropy_with_logits(logits.float(), targets.float())
 
 

@@ -138,8 +138,12 @@ class TrainConfig:
         validation metrics (0: none).
     init : str or None
         Start from the model weights of this checkpoint (fine-tuning): the
-        model and its options must give the same layers; the optimiser,
-        schedule and epochs start afresh.
+        model and its options must give the same layers, bar new layers that
+        ``train_only`` names; the optimiser, schedule and epochs start afresh.
+    train_only : list of str
+        Train only the parameters whose names start with one of these
+        prefixes (e.g. ``grasp_head.confidence``); the others stay frozen.
+        Empty: train every parameter.
     time_budget_minutes : float or None
         Stop after the step that exceeds this much training time (the steps'
         time, validation excluded; kept across ``--resume``); the checkpoint
@@ -181,6 +185,7 @@ class TrainConfig:
     val_samples: int = 0
     time_budget_minutes: float | None = None
     init: str | None = None
+    train_only: list[str] = field(default_factory=list)
 
     def validate(self) -> None:
         """Raise ValueError naming the bad option."""
@@ -300,7 +305,7 @@ def _tensorboard_writer(run_dir: Path):
 
 #: Config entries that must agree between a checkpoint and a run resuming it.
 _RESUME_MUST_MATCH = ("model", "backbone", "image_size", "model_options", "batch_size", "optimizer",
-                      "lr_schedule", "val_samples", "depth_reference")
+                      "lr_schedule", "val_samples", "depth_reference", "train_only")
 
 
 @dataclass
@@ -356,7 +361,8 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     torch.manual_seed(config.seed)
     model = build_model(config.model, config.backbone, **config.model_options).to(device)
     if config.init:
-        _load_initial_weights(model, Path(config.init), device)
+        _load_initial_weights(model, Path(config.init), device, config.train_only)
+    _freeze_all_but(model, config.train_only)
     stored_config = {**asdict(config), "model_options": _model_options(model, config),
                      "precision": precision_name(config, device)}
     if config.cpu_bf16 and device.type == "cpu" and stored_config["precision"] == "float32":
@@ -372,18 +378,37 @@ def _build_run(config: TrainConfig) -> tuple[_Run, dict[str, Any], dict[str, Any
     return run, stored_config, data_identity
 
 
-def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.device) -> None:
-    """Copy the model weights of a checkpoint into ``model`` (``--init``)."""
+def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.device,
+                          new_layers: list[str] = ()) -> None:
+    """Copy the model weights of a checkpoint into ``model`` (``--init``); layers under ``new_layers`` may be
+    missing from it (they keep their initialisation)."""
     if not path.is_file():
         raise FileNotFoundError(f"--init {path}: no such checkpoint")
     weights = read_checkpoint(path, device)["model"]
+    own = model.state_dict()
+    new = [name for name in own if name not in weights and name.startswith(tuple(new_layers))]
     try:
-        model.load_state_dict(weights)
+        model.load_state_dict({**weights, **{name: own[name] for name in new}})
     except RuntimeError as error:
         first = str(error).strip().splitlines()[0]
         raise ValueError(f"--init {path}: its layers differ from this model's ({first}); use the same "
                          "--model, --backbone and layer options") from error
-    logger.info("initial weights from %s", path)
+    logger.info("initial weights from %s%s", path, f" ({len(new)} new tensors kept as initialised)" if new else "")
+
+
+def _freeze_all_but(model: torch.nn.Module, prefixes: list[str]) -> None:
+    """Stop the gradients of every parameter whose name starts with none of ``prefixes`` (``--train-only``)."""
+    if not prefixes:
+        return
+    trained = 0
+    for name, parameter in model.named_parameters():
+        parameter.requires_grad_(name.startswith(tuple(prefixes)))
+        trained += parameter.requires_grad
+    if not trained:
+        raise ValueError(f"--train-only {' '.join(prefixes)}: no parameter of this model has such a name "
+                         "(e.g. grasp_head.confidence with --option grasp_confidence=true)")
+    logger.info("training %d parameter tensors (--train-only %s); the others are frozen", trained,
+                " ".join(prefixes))
 
 
 def _with_this_implementation(state: dict[str, Any], optimizer: torch.optim.Optimizer) -> dict[str, Any]:
@@ -797,6 +822,9 @@ def register(app: typer.Typer) -> None:
         split: Annotated[str, typer.Option(help="Split trained on (its last --val-samples are held out).")] = (
             _DEFAULTS.split),
         option: Annotated[list[str] | None, typer.Option(help="Model option NAME=JSON_VALUE (ModelOptions).")] = None,
+        train_only: Annotated[list[str] | None, typer.Option(
+            help="Train only parameters whose names start with this prefix (repeatable; e.g. "
+            "grasp_head.confidence); with --init such layers may be new.")] = None,
     ) -> None:
         """Train TOG / TOG-CRFs (or FCGN+Task) on samples shards.
 
@@ -814,7 +842,8 @@ def register(app: typer.Typer) -> None:
             model_options=_parse_options(option), optimizer=optimizer, lr_schedule=lr_schedule,
             lr_decay_epochs=list(lr_decay_epoch or []), scale_jitter=scale_jitter, val_samples=val_samples,
             depth_reference=depth_reference,
-            time_budget_minutes=time_budget or None, init=None if init is None else str(init), split=split)
+            time_budget_minutes=time_budget or None, init=None if init is None else str(init), split=split,
+            train_only=list(train_only or []))
         main = distributed.from_environment().main
         report = ProgressReport(out, epochs) if main else None
         try:

@@ -20,7 +20,6 @@ category, IoU > 0.5: ``benchmarks/grasp_ranking.py``'s ``claimable``), says
 
 from __future__ import annotations
 
-import argparse
 import pickle
 import sys
 from dataclasses import replace
@@ -30,7 +29,15 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
-from grasp_ranking import claimable, detect, handed_out, order_oracle, table_figures, top1_matches
+from grasp_ranking import (
+    checkpoint_parser,
+    claimable,
+    detect,
+    handed_out,
+    order_oracle,
+    print_variants,
+    top1_matches,
+)
 
 from osgd.contract.samples import iter_samples, sample_shards
 from togcrf.checkpoint import load_checkpoint
@@ -106,10 +113,7 @@ def rescored(pairs: Pairs, weight: float) -> Pairs:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("checkpoint", type=Path)
-    parser.add_argument("--data", type=Path, default=Path("data"))
-    parser.add_argument("--pipeline", default="recipe")
+    parser = checkpoint_parser(__doc__, pipeline="recipe")
     parser.add_argument("--pairs-cache", type=Path, default=None)
     arguments = parser.parse_args()
     pairs = detections_of(arguments.checkpoint, arguments.data, arguments.pipeline, arguments.pairs_cache)
@@ -123,10 +127,7 @@ def main() -> None:
                     pairs, lambda detections, truth, may_claim, i: float(np.max(detections.grasp_stability[i]))),
                 "claimable at random (seed 0)": handed_out(pairs, lambda *_: float(rng.random()))}
     variants |= {f"all: logit score + {w} logit top-1": rescored(pairs, w) for w in (0.25, 0.5, 1.0)}
-    print(f"Table II figures of {len(pairs)} test samples (percent, our protocol):")
-    for name, variant in variants.items():
-        row = table_figures(variant)
-        print(f"  {name:36s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
+    print_variants(variants, 36)
 
 
 if __name__ == "__main__":
