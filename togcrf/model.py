@@ -492,7 +492,7 @@ class GraspHead(nn.Module):
         object_map = None if self.object_map is None else self.object_map(features).flatten(start_dim=1)
         stability = self._per_candidate(self.stability(features), 2)
         confidence = None if self.confidence is None else self.confidence(
-            features, stable_probability(stability.detach(), None if object_map is None else object_map.detach()))
+            features, stable_probability(stability, object_map))  # the head detaches them
         return (
             self._per_candidate(self.regression(features), 5),
             stability,
