@@ -5,10 +5,12 @@ Prints
   for synthetic detections (50 detections x 196 candidates per image, the
   size of a TOG output), i.e. the evaluation overhead beyond the model;
 - the speed of freshly initialised models (batch 1, warm) at a given image
-  size on the CPU (or ``--device cuda``), as ``togcrf eval`` measures it;
+  size on the CPU (or ``--device cuda``), as ``togcrf eval`` measures it,
+  with each count of test-time views of ``--views`` (``togcrf.tta``; the
+  "roi" models only), so that their cost is a ratio measured in one run;
 - peak resident memory of this process.
 
-Run: ``python benchmarks/bench_eval.py [--size 480] [--models tog,tog-crfs,fcgn-task] [--device cpu]``.
+Run: ``python benchmarks/bench_eval.py [--size 480] [--models tog,tog-crfs,fcgn-task] [--views 1,8] [--device cpu]``.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import torch
 from osgd.contract.taxonomy import TASKS
 from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, measure_speed
 from togcrf.model import build_model
+from togcrf.tta import view_averaged_output
 
 
 def synthetic_pair(rng: np.random.Generator, detections: int = 50, candidates: int = 196,
@@ -52,6 +55,7 @@ def main() -> None:
     parser.add_argument("--backbone", default="resnet18")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--images", type=int, default=30, help="Images through the metrics.")
+    parser.add_argument("--views", default="1", help="Test-time view counts to time, comma-separated (1, 2, 4, 8).")
     arguments = parser.parse_args()
 
     rng = np.random.default_rng(0)
@@ -68,14 +72,17 @@ def main() -> None:
     image = torch.rand(1, arguments.size, arguments.size, device=arguments.device)
     for name in arguments.models.split(","):
         model = build_model(name, arguments.backbone).to(arguments.device).eval()
+        for views in [int(count) for count in arguments.views.split(",")]:
+            if views > 1 and model.grasp_branch != "roi":
+                continue
 
-        def run_once(batch_image: torch.Tensor, model: torch.nn.Module = model) -> None:
-            with torch.inference_mode():
-                model([batch_image])
+            def run_once(batch_image: torch.Tensor, model: torch.nn.Module = model, views: int = views) -> None:
+                with torch.inference_mode():
+                    view_averaged_output(model, batch_image, views)
 
-        speed = measure_speed(run_once, [image], warmup=2, repeats=5, device=arguments.device)
-        print(f"{name} ({arguments.backbone}, {arguments.size} px, batch 1, {arguments.device}, "
-              f"{torch.get_num_threads()} threads): {speed['fps']:.2f} fps")
+            speed = measure_speed(run_once, [image], warmup=2, repeats=5, device=arguments.device)
+            print(f"{name} ({arguments.backbone}, {arguments.size} px, batch 1, {arguments.device}, "
+                  f"{torch.get_num_threads()} threads, {views} view{'s' * (views > 1)}): {speed['fps']:.2f} fps")
     peak_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     peak_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     print(f"peak memory: {peak_self:.0f} MiB (children {peak_children:.0f} MiB)")

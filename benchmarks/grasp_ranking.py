@@ -47,7 +47,9 @@ which reorders the detections of all samples together):
   below every right one instead of among them.
 
     python benchmarks/grasp_ranking.py runs/cpu-recipe/tog/checkpoint.pt --data data --pipeline recipe \
-        --max-samples 100 [--json out.json]
+        --max-samples 100 [--json out.json] [--views 8]
+
+``--views`` takes the detections with their candidates averaged over test-time views (``togcrf.tta``).
 """
 
 from __future__ import annotations
@@ -108,10 +110,11 @@ RANKINGS = {
 GRID_RANKINGS = ("smooth-cells", "smooth-cells-angles")
 
 
-def detect(model: torch.nn.Module, config: dict, sample: Any) -> tuple[Detections, GroundTruth]:
-    """A checkpoint's detections on one sample (``togcrf.predict.predict_depth``) and the sample's truth."""
+def detect(model: torch.nn.Module, config: dict, sample: Any, views: int = 1) -> tuple[Detections, GroundTruth]:
+    """A checkpoint's detections on one sample (``togcrf.predict.predict_depth``, with ``views`` test-time
+    views) and the sample's truth."""
     detections = predict_depth(model, sample.depth, config.get("image_size"),
-                               depth_reference=config["depth_reference"])
+                               depth_reference=config["depth_reference"], views=views)
     return detections, GroundTruth.from_sample(sample)
 
 
@@ -317,6 +320,7 @@ def main() -> None:
     parser.add_argument("--split", default="test")
     parser.add_argument("--max-samples", type=int, default=100)
     parser.add_argument("--json", type=Path, default=None, help="also write the shares here")
+    parser.add_argument("--views", type=int, default=1, help="test-time views (togcrf.tta): 1, 2, 4 or 8")
     arguments = parser.parse_args()
     model, config = load_checkpoint(arguments.checkpoint, device="cpu")
     model.eval()
@@ -329,7 +333,7 @@ def main() -> None:
     samples = iter_samples(arguments.data, split=arguments.split,
                            shards=sample_shards(arguments.data, arguments.pipeline))
     for sample in islice(samples, arguments.max_samples):
-        pairs.append(detect(model, config, sample))
+        pairs.append(detect(model, config, sample, arguments.views))
         tally(*pairs[-1], sample.mask, sample.object_indices, counts, distances, rankings)
     objects = max(counts["objects"], 1)
     shares = {name: round(100.0 * value / objects, 1) for name, value in counts.items() if name != "objects"}
@@ -347,7 +351,8 @@ def main() -> None:
     for name, row in rows.items():
         print(table_line(name, row))
     if arguments.json:
-        arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "objects": counts["objects"],
+        arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "views": arguments.views,
+                                              "objects": counts["objects"],
                                               "shares_percent": shares,
                                               "top1_distance_quartiles_px": quartiles,
                                               "table_percent": rows}, indent=1) + "\n")

@@ -87,6 +87,23 @@ def test_eval_under_the_lab_protocol(trained: tuple[Path, Path], tmp_path: Path)
     assert documents["lab"]["metrics"]["Acc-T top1"] == documents["ours"]["metrics"]["Acc-T top1"]
 
 
+def test_eval_with_test_time_views_keeps_the_boxes_and_says_so(trained: tuple[Path, Path], tmp_path: Path) -> None:
+    """Views change only the grasp candidates: box mAP stays; the JSON and the row name say how many views."""
+    data_dir, checkpoint = trained
+    documents = {}
+    for views in (1, 4):
+        out = tmp_path / f"views{views}.json"
+        result = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data_dir), "--pipeline", "synthetic",
+                                          "--out", str(out), "--speed-images", "1", "--views", str(views)])
+        assert result.exit_code == 0, result.output
+        documents[views] = json.loads(out.read_text())
+        assert documents[views]["test_time_views"] == views
+    assert documents[4]["metrics"]["mAP"] == documents[1]["metrics"]["mAP"]
+    assert "TOG-CRFs [4 views]" in result.output and documents[4]["speed"]["fps"] > 0
+    result = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data_dir), "--views", "3"])
+    assert result.exit_code == 1 and "1, 2, 4, 8" in result.output
+
+
 def test_eval_errors_name_the_problem(trained: tuple[Path, Path], tmp_path: Path) -> None:
     data_dir, checkpoint = trained
     result = CliRunner().invoke(app, ["eval", str(tmp_path / "missing.pt"), "--data", str(data_dir)])

@@ -8,6 +8,7 @@ import pytest
 import torch
 from helpers import write_synthetic_samples
 
+from osgd.contract.taxonomy import CATEGORIES
 from osgd.store import ShardStore
 from togcrf import evaluate, reproduce, train
 from togcrf.anchors import CANDIDATES_PER_ROI, roi_anchors
@@ -18,6 +19,7 @@ from togcrf.model import (
     MODELS,
     PAPER_NAMES,
     GraspDetector,
+    GraspHead,
     GraspOutputs,
     build_model,
     object_map_targets,
@@ -305,3 +307,35 @@ def test_the_confidence_head_trains_apart_and_multiplies_the_detection_scores(ba
     model(images, targets)["grasp_confidence"].backward()
     assert float(model.grasp_head.blocks[0].conv1.weight.grad.abs().sum()) > 0
     assert model.backbone.body.conv1.weight.grad is not None
+
+
+def test_stability_per_category_uses_the_pair_of_each_rois_category(batch):
+    torch.manual_seed(0)
+    head = GraspHead(16, 16, "group", stability_categories=3)
+    pooled = torch.randn(2, 16, 7, 7)
+    stability = head(pooled, torch.tensor([2, 0]))[1]
+    every = head._per_candidate(head.stability(head.blocks(head.entry(pooled))), 6).reshape(2, CANDIDATES_PER_ROI, 3, 2)
+    assert torch.equal(stability[0], every[0, :, 2]) and torch.equal(stability[1], every[1, :, 0])
+    with pytest.raises(ValueError, match="category"):
+        head(pooled)
+
+    images, targets, _ = batch
+    model = build_model("tog", "resnet18", grasp_stability_per_category=True, box_score_threshold=0.0, **SMALL)
+    model.train()
+    model(images, targets)["grasp_stability"].backward()
+    # only the pairs of the categories of the objects that trained are trained
+    grad = model.grasp_head.stability.weight.grad.reshape(4, len(CATEGORIES), 2, -1).abs().sum(dim=(0, 2, 3))
+    trained = torch.cat([target["labels"] for target in targets]).unique() - 1
+    assert (grad[trained] > 0).all() and (grad.count_nonzero() == len(trained))
+    model.eval()
+    with torch.no_grad():
+        model.grasp_head.stability.bias.zero_()
+        model.grasp_head.stability.weight.zero_()
+        model.grasp_head.stability.bias.reshape(4, len(CATEGORIES), 2)[:, :, 1] = torch.arange(len(CATEGORIES)) - 4.5
+        outputs = model(images)
+    assert sum(len(output["labels"]) for output in outputs) > 0
+    for output in outputs:  # P(stable) of a detection follows its label's bias
+        expected = torch.sigmoid(output["labels"].float() - 1 - 4.5)[:, None].expand_as(output["grasp_stability"])
+        torch.testing.assert_close(output["grasp_stability"], expected)
+    with pytest.raises(ValueError, match="roi"):
+        build_model("fcgn-task", "resnet18", grasp_stability_per_category=True, **SMALL)

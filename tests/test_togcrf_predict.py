@@ -77,6 +77,12 @@ def test_predict_reads_png_in_millimetres_and_npy_in_metres(trained: tuple[Path,
     # Millimetre rounding barely moves the detections.
     assert len(outputs[0]["objects"]) == len(outputs[1]["objects"])
     assert np.allclose(outputs[0]["objects"][0]["box"], outputs[1]["objects"][0]["box"], atol=2.0)
+    # Test-time views keep the boxes and say how many views made the grasps.
+    result = CliRunner().invoke(app, ["predict", str(checkpoint), str(npy), "--min-score", "0", "--views", "8"])
+    assert result.exit_code == 0, result.output
+    viewed = json.loads(result.output)
+    assert viewed["test_time_views"] == 8 and outputs[1]["test_time_views"] == 1
+    assert [item["box"] for item in viewed["objects"]] == [item["box"] for item in outputs[1]["objects"]]
 
 
 def test_predict_errors(trained: tuple[Path, Path], tmp_path: Path) -> None:

@@ -235,8 +235,8 @@ class Augmentation:
         )
 
 
-def _transform_points(points: np.ndarray, shape: tuple[int, int], augmentation: Augmentation,
-                      base_scale: float) -> np.ndarray:
+def transform_points(points: np.ndarray, shape: tuple[int, int], augmentation: Augmentation,
+                     base_scale: float) -> np.ndarray:
     """Apply the flips, quarter turns and scale to (n, 2) pixel points of an image of ``shape``."""
     height, width = shape
     x, y = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
@@ -252,7 +252,7 @@ def _transform_points(points: np.ndarray, shape: tuple[int, int], augmentation: 
     return np.stack([x * scale, y * scale], axis=1)
 
 
-def _transform_angles(theta: np.ndarray, augmentation: Augmentation) -> np.ndarray:
+def transform_angles(theta: np.ndarray, augmentation: Augmentation) -> np.ndarray:
     """Closing-direction angles (rad) after the flips and quarter turns, in ``[-pi/2, pi/2)``."""
     angle = theta.astype(np.float64)
     if augmentation.flip_x:
@@ -310,13 +310,13 @@ def augment(
     scale = augmentation.scale * base_scale
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     corners = np.concatenate([boxes[:, [0, 1]], boxes[:, [2, 3]]], axis=0)
-    moved = _transform_points(corners, shape, augmentation, base_scale).reshape(2, -1, 2)
+    moved = transform_points(corners, shape, augmentation, base_scale).reshape(2, -1, 2)
     new_boxes = np.concatenate([moved.min(axis=0), moved.max(axis=0)], axis=1)
     rectangles = np.asarray(rectangles, dtype=np.float64).reshape(-1, 5)
     new_rectangles = rectangles.copy()
-    new_rectangles[:, :2] = _transform_points(rectangles[:, :2], shape, augmentation, base_scale)
+    new_rectangles[:, :2] = transform_points(rectangles[:, :2], shape, augmentation, base_scale)
     new_rectangles[:, 2:4] *= scale
-    new_rectangles[:, 4] = _transform_angles(rectangles[:, 4], augmentation)
+    new_rectangles[:, 4] = transform_angles(rectangles[:, 4], augmentation)
     return out_images, new_boxes.astype(np.float32), new_rectangles.astype(np.float32)
 
 

@@ -37,6 +37,7 @@ import typer
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.metrics import PROTOCOLS, TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
 from togcrf.model import PAPER_NAMES
+from togcrf.tta import check_view_count, view_averaged_output
 
 log = logging.getLogger(__name__)
 
@@ -84,10 +85,13 @@ def prediction_to_numpy(output: dict[str, torch.Tensor], scale: float) -> Detect
     )
 
 
-def run_model(model: torch.nn.Module, image: torch.Tensor, scale: float) -> Detections:
-    """Detections of a model (eval mode) on one ``(1, H, W)`` image tensor, in sample pixels."""
+def run_model(model: torch.nn.Module, image: torch.Tensor, scale: float, views: int = 1) -> Detections:
+    """Detections of a model (eval mode) on one ``(1, H, W)`` image tensor, in sample pixels.
+
+    ``views`` > 1 averages the grasp candidates over that many test-time views (:mod:`togcrf.tta`).
+    """
     with torch.inference_mode():
-        output = model([image])[0]
+        output = view_averaged_output(model, image, views)
     return prediction_to_numpy(output, scale)
 
 
@@ -101,6 +105,7 @@ def evaluate_model(
     unmatched_task: str = "nearest",
     protocol: str = "ours",
     depth_reference: str = "table",
+    views: int = 1,
 ) -> dict[str, Any]:
     """Table II metrics and speed of a model on samples.
 
@@ -121,6 +126,9 @@ def evaluate_model(
         The rules of mAP and mAP-G (:mod:`togcrf.metrics`, Protocols).
     depth_reference : {"table", "median"}
         Passed to :func:`togcrf.data.depth_to_tensor` (the training config's).
+    views : int
+        Test-time views averaged per image (:mod:`togcrf.tta`, ``VIEW_COUNTS``); 1: the image as given.
+        The speed is measured with the same views.
 
     Returns
     -------
@@ -130,7 +138,7 @@ def evaluate_model(
     Raises
     ------
     ValueError
-        If there are no samples, or the protocol is unknown.
+        If there are no samples, the protocol is unknown, or the views are not allowed for the model.
     """
     from togcrf.data import depth_to_tensor  # noqa: PLC0415
 
@@ -140,7 +148,7 @@ def evaluate_model(
     for sample in samples:
         image, scale = depth_to_tensor(sample.depth, image_size, depth_reference)
         image = image.to(device)
-        evaluator.add(run_model(model, image, scale), GroundTruth.from_sample(sample))
+        evaluator.add(run_model(model, image, scale, views), GroundTruth.from_sample(sample))
         if len(kept_images) < speed_images:
             kept_images.append(image)
     if evaluator.images == 0:
@@ -149,7 +157,7 @@ def evaluate_model(
     if kept_images:
         def run_once(image: torch.Tensor) -> None:
             with torch.inference_mode():
-                model([image])
+                view_averaged_output(model, image, views)
 
         speed = dict(measure_speed(run_once, kept_images, warmup=min(2, len(kept_images)), device=device))
         speed.update(crf_time_share(model, run_once, kept_images, device))
@@ -243,8 +251,9 @@ def evaluate_checkpoint(
     speed_images: int = 10,
     unmatched_task: str = "nearest",
     protocol: str = "ours",
+    views: int = 1,
 ) -> dict[str, Any]:
-    """Load a checkpoint and evaluate it on a split of a data dir.
+    """Load a checkpoint and evaluate it on a split of a data dir (``views``: :func:`evaluate_model`).
 
     Returns
     -------
@@ -264,6 +273,7 @@ def evaluate_checkpoint(
 
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}: expected one of {', '.join(PROTOCOLS)}")
+    check_view_count(views)
     checkpoint = Path(checkpoint)
     if not checkpoint.is_file():
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
@@ -276,7 +286,7 @@ def evaluate_checkpoint(
     try:
         result = evaluate_model(model, samples, config.get("image_size"), device=device,
                                 speed_images=speed_images, unmatched_task=unmatched_task, protocol=protocol,
-                                depth_reference=config["depth_reference"])
+                                depth_reference=config["depth_reference"], views=views)
     except ValueError as error:
         raise ValueError(f"{data_dir}: split {split!r}: {error}") from error
     result = {
@@ -287,6 +297,7 @@ def evaluate_checkpoint(
         "split": split,
         "unmatched_task": unmatched_task,
         "protocol": protocol,
+        "test_time_views": views,
         "torch_threads": torch.get_num_threads(),
         **result,
     }
@@ -449,9 +460,10 @@ def document_protocol(document: dict[str, Any]) -> str:
 
 
 def row_name(document: dict[str, Any]) -> str:
-    """The paper's name of an evaluated model, or its own name."""
+    """The paper's name of an evaluated model, or its own name; with test-time views, how many."""
     model = str(document.get("model", "unknown"))
-    return PAPER_NAMES.get(model, model)
+    views = document.get("test_time_views", 1)
+    return PAPER_NAMES.get(model, model) + (f" [{views} views]" if views > 1 else "")
 
 
 # --------------------------------------------------------------------------- CLI
@@ -470,6 +482,9 @@ def eval_command(
     unmatched_task: Annotated[str, typer.Option(help="Acc-T: 'nearest' or 'wrong' (togcrf.metrics).")] = "nearest",
     protocol: Annotated[str, typer.Option(help="mAP / mAP-G rules: 'ours' or 'lab' (the lab's evaluator; "
                                                "togcrf.metrics).")] = "ours",
+    views: Annotated[int, typer.Option(help="Test-time views: average each detection's grasp candidates over "
+                                            "1 (off), 2, 4 or 8 flipped and turned copies of the image "
+                                            "(togcrf.tta); slower, and fps is measured with them.")] = 1,
 ) -> None:
     """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON."""
     try:
@@ -478,7 +493,7 @@ def eval_command(
         document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split,
                                        device=str(resolve_device(device)),
                                        max_samples=max_samples, speed_images=speed_images,
-                                       unmatched_task=unmatched_task, protocol=protocol)
+                                       unmatched_task=unmatched_task, protocol=protocol, views=views)
     except (FileNotFoundError, ValueError, KeyError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error

@@ -9,7 +9,8 @@ categories plus background), and one grasp branch, as torchvision's
 
 - "roi" (TOG and TOG-CRFs): on the pooled features of each RoI, 3
   ResBlocks, then three 3 x 3 convolutions with 4 x 5 regression, 4 x 2
-  stability and 4 x 12 task channels: 196 candidates per RoI
+  stability (4 x 2 per category with ``grasp_stability_per_category``) and
+  4 x 12 task channels: 196 candidates per RoI
   (``togcrf.anchors``); with ``grasp_object_map`` a fourth, one channel per
   cell: the cell lies on the RoI's own object; with ``grasp_confidence`` a
   small head that predicts whether the RoI's top-1 candidate is a right grasp
@@ -216,6 +217,14 @@ class ModelOptions:
         The confidence loss also reaches the grasp trunk and what lies
         under it (False: the head sees detached features and changes
         nothing else the model learns).
+    grasp_stability_per_category : bool
+        The stability convolution of the "roi" grasp head gives each
+        candidate one pair of logits per category, and a RoI uses its
+        category's pair (in training its object's, at inference its
+        detected label), as Mask R-CNN (He et al., ICCV 2017) predicts one
+        mask per class. Our addition (issue #15): where the annotated grasps
+        of an object lie depends on its category, and the top-1 candidate,
+        which mAP-G judges, misses an annotation for 4 in 10 detections.
     grasp_rois_per_image : int
         Foreground RoIs per image that train the grasp branch.
     grasp_channels : int
@@ -254,6 +263,7 @@ class ModelOptions:
     grasp_ranking_weight: float = 0.0
     grasp_confidence: bool = False
     grasp_confidence_trains_features: bool = False
+    grasp_stability_per_category: bool = False
     grasp_rois_per_image: int = 16
     grasp_channels: int = 256
     crf_iterations: int = DEFAULT_ITERATIONS
@@ -459,15 +469,18 @@ class GraspHead(nn.Module):
 
     def __init__(self, in_channels: int, channels: int, norm: str, task_count: int = len(TASKS),
                  blocks: int = 3, output_norm: bool = True, object_map: bool = False,
-                 confidence: bool = False, confidence_trains_features: bool = False) -> None:
+                 confidence: bool = False, confidence_trains_features: bool = False,
+                 stability_categories: int = 1) -> None:
         super().__init__()
         self.anchors = len(ANCHOR_ANGLES)
         self.task_count = task_count
+        #: Pairs of stability logits per candidate: 1, or one per category (``grasp_stability_per_category``).
+        self.stability_categories = stability_categories
         self.entry = nn.Identity() if in_channels == channels else nn.Conv2d(in_channels, channels, 1)
         trunk = [ResBlock(channels, norm) for _ in range(blocks)]
         self.blocks = nn.Sequential(*trunk, *([norm_layer(norm)(channels)] if output_norm else []))
         self.regression = nn.Conv2d(channels, self.anchors * 5, 3, padding=1)
-        self.stability = nn.Conv2d(channels, self.anchors * 2, 3, padding=1)
+        self.stability = nn.Conv2d(channels, self.anchors * 2 * stability_categories, 3, padding=1)
         self.task = nn.Conv2d(channels, self.anchors * task_count, 3, padding=1)
         #: One logit per cell: the cell lies on the RoI's own object (``ModelOptions.grasp_object_map``).
         self.object_map = nn.Conv2d(channels, 1, 3, padding=1) if object_map else None
@@ -484,13 +497,25 @@ class GraspHead(nn.Module):
         rois, _, rows, columns = output.shape
         return output.permute(0, 2, 3, 1).reshape(rois, rows * columns * self.anchors, width)
 
-    def forward(self, pooled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None,
-                                                      torch.Tensor | None]:
+    def _stability(self, features: torch.Tensor, categories: torch.Tensor | None) -> torch.Tensor:
+        """(R, K, 2) stability logits; with one pair per category, the pair of each RoI's category (R,)."""
+        stability = self._per_candidate(self.stability(features), 2 * self.stability_categories)
+        if self.stability_categories == 1:
+            return stability
+        if categories is None:
+            raise ValueError("grasp_stability_per_category: the grasp head needs each RoI's category")
+        rois, candidates, _ = stability.shape
+        pairs = stability.reshape(rois, candidates, self.stability_categories, 2)
+        return pairs.gather(2, categories.reshape(rois, 1, 1, 1).expand(rois, candidates, 1, 2)).squeeze(2)
+
+    def forward(self, pooled: torch.Tensor, categories: torch.Tensor | None = None,
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """Regression, stability and task per candidate, the object map per cell ``(R, H * W)`` or None, and
-        the top-1 confidence logit per RoI ``(R,)`` or None."""
+        the top-1 confidence logit per RoI ``(R,)`` or None; ``categories`` (R,) long: each RoI's category
+        index, needed with one stability pair per category."""
         features = self.blocks(self.entry(pooled))
         object_map = None if self.object_map is None else self.object_map(features).flatten(start_dim=1)
-        stability = self._per_candidate(self.stability(features), 2)
+        stability = self._stability(features, categories)
         confidence = None if self.confidence is None else self.confidence(
             features, stable_probability(stability, object_map))  # the head detaches them
         return (
@@ -680,7 +705,8 @@ def build_grasp_head(grasp_branch: str, options: ModelOptions) -> GraspHead:
     return GraspHead(options.fpn_channels, options.grasp_channels, options.norm,
                      output_norm=options.grasp_trunk_norm, object_map=options.grasp_object_map,
                      confidence=options.grasp_confidence,
-                     confidence_trains_features=options.grasp_confidence_trains_features)
+                     confidence_trains_features=options.grasp_confidence_trains_features,
+                     stability_categories=len(CATEGORIES) if options.grasp_stability_per_category else 1)
 
 
 def grasp_training_rois(proposals: list[torch.Tensor], labels: list[torch.Tensor], matched: list[torch.Tensor],
@@ -871,7 +897,7 @@ class GraspDetector(nn.Module):
         self.grasp_branch = grasp_branch
         #: Pixels per cell of the "image" branch's feature map; None for the "roi" branch.
         self.grasp_stride = image_branch_stride(grasp_branch, options)
-        for option in ("grasp_object_map", "grasp_confidence"):
+        for option in ("grasp_object_map", "grasp_confidence", "grasp_stability_per_category"):
             if grasp_branch == "image" and getattr(options, option):
                 raise ValueError(f"{option} needs RoIs: it is an option of the \"roi\" grasp branch (TOG, "
                                  "TOG-CRFs), not of FCGN + Task")
@@ -896,8 +922,10 @@ class GraspDetector(nn.Module):
             return self.crf(logits)
 
     def grasp_outputs(self, features: dict[str, torch.Tensor], rois: list[torch.Tensor],
-                      image_sizes: list[tuple[int, int]]) -> GraspOutputs:
+                      image_sizes: list[tuple[int, int]], labels: list[torch.Tensor] | None = None) -> GraspOutputs:
         """The grasp head on RoIs (a list of (n_b, 4) boxes per image), as the "roi" branch runs it.
+
+        ``labels`` (a list of (n_b,) category index + 1) are needed with ``grasp_stability_per_category``.
 
         Returns
         -------
@@ -905,7 +933,8 @@ class GraspDetector(nn.Module):
             R = all RoIs, K = 196; anchors (R, 196, 5).
         """
         pooled = self.roi_heads.box_roi_pool(features, rois, image_sizes)
-        regression, stability, task_logits, object_map, confidence = self.grasp_head(pooled)
+        categories = None if labels is None else torch.cat(labels).long() - 1
+        regression, stability, task_logits, object_map, confidence = self.grasp_head(pooled, categories)
         all_rois = torch.cat(rois) if rois else pooled.new_zeros((0, 4))
         anchors = roi_anchors(all_rois.float(), self.options.grasp_anchor_size)
         return GraspOutputs(regression, stability, self.task_log_probs(task_logits), anchors, object_map, confidence)
@@ -994,7 +1023,8 @@ class GraspDetector(nn.Module):
         options = self.options
         grasps, valid, tasks, first_object = padded_object_grasps(targets)
         rois, owners = grasp_training_rois(*sampled, first_object, options.grasp_rois_per_image)
-        outputs = self.grasp_outputs(features, rois, image_sizes)
+        owner_labels = torch.cat([target["labels"] for target in targets])[owners]
+        outputs = self.grasp_outputs(features, rois, image_sizes, [owner_labels])
         roi_boxes, owner_grasps = torch.cat(rois).float(), grasps[owners].float()
         positive, regression_targets, task_targets = match(
             outputs.anchors, roi_boxes, owner_grasps, valid[owners], tasks[owners], len(TASKS),
@@ -1027,7 +1057,8 @@ class GraspDetector(nn.Module):
                         image_sizes: list[tuple[int, int]]) -> list[dict[str, torch.Tensor]]:
         """The "roi" branch in eval mode: the 196 candidates of each detected box."""
         counts = [len(detection["boxes"]) for detection in detections]
-        outputs = self.grasp_outputs(features, [detection["boxes"] for detection in detections], image_sizes)
+        outputs = self.grasp_outputs(features, [detection["boxes"] for detection in detections], image_sizes,
+                                     [detection["labels"] for detection in detections])
         rectangles = decode(outputs.regression.float(), outputs.anchors)
         stable = stable_probability(outputs.stability, outputs.object_map)
         task_probs = outputs.task_log_probs.exp()

@@ -96,16 +96,17 @@ def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None =
 
 
 def predict_depth(model: torch.nn.Module, depth: np.ndarray, image_size: int | None, device: str = "cpu",
-                  depth_reference: str = "table") -> Detections:
+                  depth_reference: str = "table", views: int = 1) -> Detections:
     """Detections of a model on a depth image (metres), in the image's pixels.
 
-    ``image_size`` and ``depth_reference`` are the training config's (:func:`togcrf.data.depth_to_tensor`).
+    ``image_size`` and ``depth_reference`` are the training config's (:func:`togcrf.data.depth_to_tensor`);
+    ``views`` > 1 averages the grasp candidates over test-time views (:mod:`togcrf.tta`).
     """
     from togcrf.data import depth_to_tensor  # noqa: PLC0415
 
     image, scale = depth_to_tensor(depth, image_size, depth_reference)
     model.eval()
-    return run_model(model, image.to(device), scale)
+    return run_model(model, image.to(device), scale, views)
 
 
 def keep_confident(detections: Detections, min_score: float) -> Detections:
@@ -297,6 +298,8 @@ def predict_command(
     min_stability: Annotated[float, typer.Option(help="For --task: candidates at least this stable compete.")] = 0.5,
     grasps_per_object: Annotated[int | None, typer.Option(help="Candidates per object in the JSON (all).")] = None,
     device: Annotated[str, typer.Option(help="torch device.")] = "cpu",
+    views: Annotated[int, typer.Option(help="Test-time views: average the grasp candidates over 1 (off), 2, 4 "
+                                            "or 8 flipped and turned copies of the image (togcrf.tta).")] = 1,
 ) -> None:
     """Detect objects and task-oriented grasps on one depth image; JSON out, optional picture."""
 
@@ -309,13 +312,14 @@ def predict_command(
             check_vocabulary(config["vocabulary"], samples_vocabulary(sample_shards(data, pipeline)),
                              str(checkpoint), f"{data}/samples")
         detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device,
-                                                     config["depth_reference"]), min_score)
+                                                     config["depth_reference"], views), min_score)
         chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
     except (FileNotFoundError, ValueError, KeyError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     document = {"input": source, "model": config.get("model"), "checkpoint": str(checkpoint),
                 "height": int(depth.shape[0]), "width": int(depth.shape[1]), "min_score": min_score,
+                "test_time_views": views,
                 **prediction_document(detections, grasps_per_object)}
     if sample is not None:
         document["sample_id"] = sample.sample_id
