@@ -10,15 +10,19 @@ from __future__ import annotations
 import json
 import re
 import shutil
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from helpers import write_synthetic_samples
 from typer.testing import CliRunner
 
+from osgd.contract.samples import iter_samples
 from osgd.pipeline import load_pipeline
 from osgd.samples.renderer import make_renderer
 from osgd.store import ShardStore, canonical_json
@@ -33,12 +37,14 @@ from togcrf.robot.protocol import (
     PAPER_TOTAL,
     ROBOT_SCENE_OFFSET,
     TOOL_TASKS,
+    Trial,
     check_fresh,
     protocol_trials,
 )
 from togcrf.robot.report import TRIAL_LOG, rates, read_logs, write_log
 from togcrf.robot.run import RunSpec, make_policies, run_trials
 from togcrf.robot.world import World, world_from_tables
+from togcrf.train import TrainConfig, train
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "data" / "golden"
@@ -244,3 +250,25 @@ def test_robot_eval_and_robot_table_on_the_command_line(tmp_path: Path) -> None:
         assert failed.exit_code == 1
         assert failed.output.strip().splitlines() == [f"error: {failed.output.split('error: ')[1].strip()}"]
         assert message in failed.output
+
+
+def test_a_checkpoint_policy_takes_test_time_views(tmp_path: Path) -> None:
+    """`robot-eval --views`: the policy of a checkpoint averages its candidates over the views; boxes stay."""
+    write_synthetic_samples(ShardStore(tmp_path / "data"), 4)
+    train(TrainConfig(data=str(tmp_path / "data"), out=str(tmp_path / "run" / "tog"), pipeline="synthetic",
+                      model="tog", backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False,
+                      warmup_steps=1, device="cpu", amp=False, model_options={"detections_per_image": 5}))
+    spec = RunSpec(None, (), None, (str(tmp_path / "run" / "tog" / "checkpoint.pt"),), tmp_path, min_score=0.0,
+                   min_stability=0.0, views=8)
+    (viewed,) = make_policies(spec, None)
+    plain = replace(viewed, views=1)
+    assert viewed.views == 8 and viewed.name == "tog:run [8 views]"
+    observation = SimpleNamespace(depth=next(iter_samples(tmp_path / "data", pipeline="synthetic")).depth)
+    trial = Trial("hand over", 0, "hammer", 0)
+    plain.choose(trial, observation)
+    viewed.choose(trial, observation)
+    assert len(plain.last_detections.scores) > 0
+    np.testing.assert_array_equal(plain.last_detections.boxes, viewed.last_detections.boxes)
+    assert not np.allclose(plain.last_detections.grasp_stability, viewed.last_detections.grasp_stability)
+    with pytest.raises(ValueError, match="1, 2, 4, 8"):
+        make_policies(replace(spec, views=3), None)

@@ -80,6 +80,8 @@ def robot_eval_command(
     workers: Annotated[int, typer.Option(help="Processes (the trials are split between them).")] = 1,
     min_score: Annotated[float, typer.Option(help="Checkpoints: keep detections with this score.")] = 0.5,
     min_stability: Annotated[float, typer.Option(help="Checkpoints: candidates this stable compete.")] = 0.5,
+    views: Annotated[int, typer.Option(help="Checkpoints: average the grasp candidates over 1 (off), 2, 4 or 8 "
+                                            "flipped and turned copies of each image (togcrf.tta).")] = 1,
     any_pile: Annotated[bool, typer.Option(
         "--any-pile", help="Keep each trial's first pile even when the task cannot be done in it.")] = False,
     pictures: Annotated[bool, typer.Option(help="Draw a picture of every failure.")] = True,
@@ -94,11 +96,13 @@ def robot_eval_command(
     from togcrf.robot.protocol import check_fresh, protocol_trials  # noqa: PLC0415
     from togcrf.robot.run import RunSpec, run_protocol  # noqa: PLC0415
     from togcrf.robot.world import load_world, stored_scene_seeds  # noqa: PLC0415
+    from togcrf.tta import check_view_count  # noqa: PLC0415
 
     started = time.perf_counter()
     overrides = tuple(set_values or ())
     try:
         policies = _policies(list(checkpoints or []), baselines)
+        check_view_count(views)
         chosen_tasks = _tasks(tasks)
         pipeline = load_pipeline(config, overrides)
         check_fresh(pipeline.params["scenes"].count, (), ())
@@ -108,7 +112,7 @@ def robot_eval_command(
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     spec = RunSpec(config, overrides, data, policies, out, min_score=min_score, min_stability=min_stability,
-                   pictures=pictures, require_clear=not any_pile)
+                   views=views, pictures=pictures, require_clear=not any_pile)
     typer.echo(f"{len(trials)} trials x {len(policies)} policies, {workers} process(es); writing to {out}")
 
     rows = run_protocol(spec, trials, workers, world if workers <= 1 else None, print_progress)
@@ -118,7 +122,8 @@ def robot_eval_command(
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(1) from error
     text = write_results(out, rows, {"command": command_line(), "config": str(config), "overrides": list(overrides),
-                                     "policies": list(policies), "trials": len(trials), "workers": workers,
+                                     "policies": list(policies), "views": views, "trials": len(trials),
+                                     "workers": workers,
                                      "seconds": time.perf_counter() - started})
     typer.echo(text)
     typer.echo(f"{len(rows)} trial rows in {time.perf_counter() - started:.0f} s; written to {out}")

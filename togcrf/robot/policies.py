@@ -155,6 +155,8 @@ class ModelPolicy:
     min_stability: float = 0.5
     device: str = "cpu"
     depth_reference: str = "table"
+    #: Test-time views averaged per image (:mod:`togcrf.tta`); 1: the image as given.
+    views: int = 1
     last_detections: Any = field(default=None, repr=False)
 
     def choose(self, trial: Trial, observation: Observation) -> Choice:
@@ -162,7 +164,7 @@ class ModelPolicy:
         from togcrf.predict import best_grasp_for_task, keep_confident, predict_depth  # noqa: PLC0415
 
         detections = keep_confident(predict_depth(self.model, observation.depth, self.image_size, self.device,
-                                                  self.depth_reference),
+                                                  self.depth_reference, self.views),
                                     self.min_score)
         self.last_detections = detections
         count = len(detections.scores)
@@ -175,19 +177,22 @@ class ModelPolicy:
 
 
 def model_policy(checkpoint: Path, name: str | None = None, *, min_score: float = 0.5, min_stability: float = 0.5,
-                 device: str = "cpu") -> ModelPolicy:
-    """A :class:`ModelPolicy` for a checkpoint (named after its model and run folder unless ``name``).
+                 device: str = "cpu", views: int = 1) -> ModelPolicy:
+    """A :class:`ModelPolicy` for a checkpoint (named after its model and run folder, and its test-time views
+    when more than one, unless ``name``).
 
     Raises
     ------
     FileNotFoundError, ValueError
-        Not a togcrf checkpoint.
+        Not a togcrf checkpoint, or views not in ``togcrf.tta.VIEW_COUNTS``.
     """
+    from togcrf.tta import check_view_count  # noqa: PLC0415
 
+    check_view_count(views)
     model, config = load_checkpoint(checkpoint, device=device)
     checkpoint = Path(checkpoint)
     run = checkpoint.parent if checkpoint.suffix == ".pt" else checkpoint
-    label = name or f"{config.get('model', 'model')}:{run.parent.name}"
+    label = name or f"{config.get('model', 'model')}:{run.parent.name}" + (f" [{views} views]" if views > 1 else "")
     return ModelPolicy(label, str(checkpoint), model, config.get("image_size"), min_score, min_stability, device,
-                       config["depth_reference"])
+                       config["depth_reference"], views)
 

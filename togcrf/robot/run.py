@@ -49,6 +49,8 @@ class RunSpec:
     params : RobotParams
     min_score, min_stability : float
         For checkpoints (:func:`togcrf.predict.best_grasp_for_task`).
+    views : int
+        For checkpoints: test-time views averaged per image (:mod:`togcrf.tta`).
     pictures : bool
         Draw a picture of every failure.
     require_clear : bool
@@ -65,6 +67,7 @@ class RunSpec:
     params: RobotParams = field(default_factory=RobotParams)
     min_score: float = 0.5
     min_stability: float = 0.5
+    views: int = 1
     pictures: bool = True
     require_clear: bool = True
     max_piles: int = 20
@@ -79,7 +82,8 @@ def make_policies(spec: RunSpec, world: World) -> list[Policy]:
         elif name == "random":
             policies.append(RandomPolicy(world.seed, world.gripper.finger_width, world.gripper.max_opening))
         else:
-            policies.append(model_policy(Path(name), min_score=spec.min_score, min_stability=spec.min_stability))
+            policies.append(model_policy(Path(name), min_score=spec.min_score, min_stability=spec.min_stability,
+                                         views=spec.views))
     return policies
 
 
