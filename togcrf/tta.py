@@ -23,6 +23,8 @@ docs/togcrf-evaluation.md ("Test-time views").
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import torch
 
@@ -70,8 +72,10 @@ def view_boxes(boxes: torch.Tensor, shape: tuple[int, int], view: Augmentation) 
     return torch.cat([moved.amin(dim=0), moved.amax(dim=0)], dim=1).to(boxes)
 
 
+@lru_cache(maxsize=len(VIEWS))
 def candidate_permutation(view: Augmentation) -> torch.Tensor:
-    """``(196,)`` long: entry ``c`` is the index, in a view's RoI, of candidate ``c`` of the RoI as given.
+    """``(196,)`` long: entry ``c`` is the index, in a view's RoI, of candidate ``c`` of the RoI as given
+    (computed once per view; callers must not modify it).
 
     Candidate ``(i * 7 + j) * 4 + a`` is cell row i, column j, anchor angle a
     (:mod:`togcrf.anchors`). The cells move as the pixels of a 7 x 7 image
@@ -123,7 +127,7 @@ def view_averaged_output(model: torch.nn.Module, image: torch.Tensor, views: int
         If ``views`` is not allowed, or the model has the "image" grasp branch (FCGN + Task).
     """
     check_view_count(views)
-    if views > 1 and getattr(model, "grasp_branch", "roi") != "roi":
+    if views > 1 and model.grasp_branch != "roi":
         raise ValueError("test-time views need the \"roi\" grasp branch (TOG, TOG-CRFs); FCGN + Task has none")
     output = model([image])[0]
     if views == 1 or len(output["boxes"]) == 0:
