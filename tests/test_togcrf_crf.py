@@ -16,6 +16,7 @@ from togcrf.anchors import (
     encode,
     match,
     near_ground_truth,
+    regression_targets_within,
     roi_anchors,
     wrap_angle,
 )
@@ -104,6 +105,32 @@ def test_anchors_near_a_grasp_are_within_the_radius_and_45_degrees():
     # 30 degrees is within 45 of -22.5? no (52.5); of 22.5 and 67.5: yes
     assert angles == {ANCHOR_ANGLES[2], ANCHOR_ANGLES[3]}
     assert not near_ground_truth(anchors, rois, grasp, torch.zeros(1, 1, dtype=torch.bool), radius=1.0).any()
+
+
+def test_regression_targets_within_a_radius_take_the_3_by_3_cells_and_the_nearest_grasp():
+    rois = torch.tensor([[0.0, 0.0, 70.0, 70.0]])
+    anchors = roi_anchors(rois, anchor_size=16.0)
+    valid = torch.ones(1, 2, dtype=torch.bool)
+    # two grasps at 80 degrees in cells (2, 4) and (2, 6), slightly off their cell centres
+    grasps = torch.tensor([[[47.0, 24.0, 20.0, 8.0, math.radians(80.0)], [64.0, 26.0, 20.0, 8.0, math.radians(80.0)]]])
+    positive, own_targets, _ = match(anchors, rois, grasps, valid, torch.zeros(1, 2, dtype=torch.int64), 12)
+    regressed, targets = regression_targets_within(anchors, rois, grasps, valid, radius=1.0)
+
+    def candidate(row: int, column: int) -> int:
+        return (row * GRID + column) * 4 + 3
+
+    # the anchors at 67.5 degrees of the 3 x 3 cells around each grasp, the positives among them
+    assert set(regressed[0].nonzero().flatten().tolist()) == {
+        candidate(row, column) for row in (1, 2, 3) for column in (3, 4, 5, 6)}
+    assert bool((positive <= regressed).all())
+    # a neighbour cell regresses onto its nearest grasp: (1, 3) and (2, 5) onto the first, (3, 6) onto the second
+    for (row, column), grasp in (((1, 3), 0), ((2, 5), 0), ((3, 6), 1)):
+        decoded = decode(targets[0, candidate(row, column)], anchors[0, candidate(row, column)])
+        assert torch.allclose(decoded, grasps[0, grasp], atol=1e-4), (row, column)
+    # a positive keeps the target of its own cell's grasp
+    assert torch.allclose(targets[positive], own_targets[positive], atol=1e-6)
+    assert not bool(targets[~regressed].any())
+    assert not regression_targets_within(anchors, rois, grasps, valid & False, radius=1.0)[0].any()
 
 
 def test_crf_without_pairwise_weights_returns_softmax_of_the_logits():

@@ -339,3 +339,28 @@ def test_stability_per_category_uses_the_pair_of_each_rois_category(batch):
         torch.testing.assert_close(output["grasp_stability"], expected)
     with pytest.raises(ValueError, match="roi"):
         build_model("fcgn-task", "resnet18", grasp_stability_per_category=True, **SMALL)
+
+
+def test_the_regression_radius_trains_the_regression_of_the_candidates_near_a_grasp(batch):
+    images, targets, _ = batch
+    seen = {}
+    for radius in (0.0, 1.0):
+        torch.manual_seed(0)
+        model = build_model("tog", "resnet18", grasp_regression_radius=radius, **SMALL)
+        model.train()
+        original = model._grasp_losses
+
+        def keep(outputs, grasp_targets, radius=radius, original=original):
+            seen[radius] = grasp_targets
+            return original(outputs, grasp_targets)
+
+        model._grasp_losses = keep
+        losses = model(images, targets)
+        assert math.isfinite(float(losses["grasp_regression"].detach()))
+    assert seen[0.0].regressed is None
+    wide = seen[1.0]
+    # the same RoIs and positives; more candidates regress, the positives among them
+    assert torch.equal(wide.positive, seen[0.0].positive)
+    assert bool((wide.positive <= wide.regressed).all()) and int(wide.regressed.sum()) > int(wide.positive.sum())
+    with pytest.raises(ValueError, match="roi"):
+        build_model("fcgn-task", "resnet18", grasp_regression_radius=1.0, **SMALL)

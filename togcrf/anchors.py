@@ -25,6 +25,8 @@ widens "in the anchor's cell" to ``|dx|, |dy| <= (1/2 + radius) cells`` (1:
 the 3 x 3 cells around the grasp centre, as FCOS's centre sampling), and the
 target is then the nearest matched grasp (the grasps at the same, nearest
 centre, for their tasks), not the mean of grasps at different places.
+:func:`regression_targets_within` gives the same nearest-grasp targets to the
+anchors within a radius for the regression alone (``grasp_regression_radius``).
 :func:`near_ground_truth` marks the anchors close to a ground-truth grasp
 that are not positive, which :mod:`togcrf.losses` keeps out of the hard
 negatives: the annotations are a sparse sample of the stable grasps, so a
@@ -207,11 +209,37 @@ def match(
     count = weights.sum(dim=-1)
     positive = count > 0
     denominator = count.clamp(min=1.0)[..., None]
-    targets = encode(grasps[:, None, :, :], anchors[:, :, None, :])
-    regression_targets = (weights[..., None] * targets).sum(dim=2) / denominator
+    # encode only the matched (RoI, anchor, grasp) pairs, a few hundred of the R x K x G
+    roi, candidate, grasp = matched.nonzero(as_tuple=True)
+    regression_targets = anchors.new_zeros(anchors.shape[0] * anchors.shape[1], 5).index_add_(
+        0, roi * anchors.shape[1] + candidate, encode(grasps[roi, grasp], anchors[roi, candidate]))
+    regression_targets = regression_targets.view(anchors.shape) / denominator
     one_hot = torch.nn.functional.one_hot(grasp_tasks.clamp(min=0), task_count).to(anchors.dtype)
     task_targets = torch.einsum("rkg,rgt->rkt", weights, one_hot) / denominator
     return positive, regression_targets, task_targets
+
+
+def regression_targets_within(anchors: torch.Tensor, rois: torch.Tensor, grasps: torch.Tensor,
+                              grasp_valid: torch.Tensor, radius: float, grid: int = GRID,
+                              ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Anchors within ``1/2 + radius`` cells (angle within 22.5 degrees) of a grasp, and their regression targets.
+
+    The target of such an anchor is the encoding of its nearest grasp (the
+    mean over grasps at the same, nearest centre), as :func:`match` with
+    ``positive_radius=radius``; only the regression uses it
+    (``togcrf.model.ModelOptions.grasp_regression_radius``), so that a
+    candidate chosen a cell away from an annotated grasp is moved onto it.
+    The parameters are those of :func:`near_ground_truth` (``radius`` > 0).
+
+    Returns
+    -------
+    regressed : (R, K) bool
+    regression_targets : (R, K, 5) float
+        Zero where not ``regressed``.
+    """
+    tasks = torch.zeros(grasp_valid.shape, dtype=torch.int64, device=grasp_valid.device)
+    regressed, regression_targets, _ = match(anchors, rois, grasps, grasp_valid, tasks, 1, grid, radius)
+    return regressed, regression_targets
 
 
 def near_ground_truth(

@@ -4,7 +4,8 @@
   with all positives and the hardest negatives, 3 negatives per positive
   (hard negative mining as ROI-GD); optionally plus a top-1 ranking term
   (``ModelOptions.grasp_ranking_weight``, :func:`top1_ranking_loss`);
-- regression: smooth L1 on the encoded rectangles of positive candidates;
+- regression: smooth L1 on the encoded rectangles of positive candidates
+  (or of every candidate near a grasp, ``ModelOptions.grasp_regression_radius``);
 - task: cross entropy of the positive candidates' task targets against the
   log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG);
 - object map (``ModelOptions.grasp_object_map``; zero without it): binary
@@ -106,6 +107,7 @@ def grasp_losses(
     negative_ratio: int = DEFAULT_NEGATIVE_RATIO,
     ignored: torch.Tensor | None = None,
     ranking_weight: float = 0.0,
+    regressed: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """The three grasp losses over a batch of RoIs.
 
@@ -126,6 +128,8 @@ def grasp_losses(
         Candidates kept out of the hard negatives (near a ground-truth grasp).
     ranking_weight : float
         Weight of :func:`top1_ranking_loss`, added to the stability loss (0: the paper's loss).
+    regressed : (R, K) bool, optional
+        Candidates whose regression is trained, with ``regression_targets`` for each (None: the positives).
 
     Returns
     -------
@@ -144,9 +148,10 @@ def grasp_losses(
     if ranking_weight:
         stability = stability + ranking_weight * top1_ranking_loss(stability_logits, positive)
     positives = positive.sum().clamp(min=1)
+    regressed = positive if regressed is None else regressed
     regression_loss = functional.smooth_l1_loss(
-        regression[positive].float(), regression_targets[positive].float(), reduction="sum", beta=1.0
-    ) / positives
+        regression[regressed].float(), regression_targets[regressed].float(), reduction="sum", beta=1.0
+    ) / regressed.sum().clamp(min=1)
     task_per_candidate = -(task_targets * task_log_probs.float()).sum(dim=-1)
     task = (task_per_candidate * positive).sum() / positives
     return dict(zip(GRASP_LOSS_KEYS, (stability, regression_loss, task), strict=True))
