@@ -37,7 +37,7 @@ import typer
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.metrics import PROTOCOLS, TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
 from togcrf.model import PAPER_NAMES
-from togcrf.tta import check_view_count, view_averaged_output
+from togcrf.tta import check_view_count, view_averaged_output, views_label
 
 log = logging.getLogger(__name__)
 
@@ -462,8 +462,7 @@ def document_protocol(document: dict[str, Any]) -> str:
 def row_name(document: dict[str, Any]) -> str:
     """The paper's name of an evaluated model, or its own name; with test-time views, how many."""
     model = str(document.get("model", "unknown"))
-    views = document.get("test_time_views", 1)
-    return PAPER_NAMES.get(model, model) + (f" [{views} views]" if views > 1 else "")
+    return PAPER_NAMES.get(model, model) + views_label(document.get("test_time_views", 1))
 
 
 # --------------------------------------------------------------------------- CLI

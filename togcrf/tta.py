@@ -47,6 +47,11 @@ def check_view_count(views: int) -> None:
                          f"{', '.join(map(str, VIEW_COUNTS))} (1 = the image as given)")
 
 
+def views_label(views: int) -> str:
+    """What names a row or policy run with test-time views: `` [8 views]``, or nothing for 1 view."""
+    return f" [{views} views]" if views > 1 else ""
+
+
 def view_image(image: torch.Tensor, view: Augmentation) -> torch.Tensor:
     """The ``(..., H, W)`` image seen in a view: the pixel permutation of :func:`togcrf.data.augment`."""
     if view.flip_x:

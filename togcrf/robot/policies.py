@@ -186,13 +186,13 @@ def model_policy(checkpoint: Path, name: str | None = None, *, min_score: float 
     FileNotFoundError, ValueError
         Not a togcrf checkpoint, or views not in ``togcrf.tta.VIEW_COUNTS``.
     """
-    from togcrf.tta import check_view_count  # noqa: PLC0415
+    from togcrf.tta import check_view_count, views_label  # noqa: PLC0415
 
     check_view_count(views)
     model, config = load_checkpoint(checkpoint, device=device)
     checkpoint = Path(checkpoint)
     run = checkpoint.parent if checkpoint.suffix == ".pt" else checkpoint
-    label = name or f"{config.get('model', 'model')}:{run.parent.name}" + (f" [{views} views]" if views > 1 else "")
+    label = name or f"{config.get('model', 'model')}:{run.parent.name}{views_label(views)}"
     return ModelPolicy(label, str(checkpoint), model, config.get("image_size"), min_score, min_stability, device,
                        config["depth_reference"], views)
 
