@@ -15,6 +15,8 @@ from togcrf.anchors import CANDIDATES_PER_ROI, roi_anchors
 from togcrf.data import SamplesDataset, collate
 from togcrf.losses import LOSS_KEYS
 from togcrf.model import (
+    C2_CHANNELS,
+    FINE_MAP,
     MODEL_NAMES,
     MODELS,
     PAPER_NAMES,
@@ -24,6 +26,7 @@ from togcrf.model import (
     build_model,
     object_map_targets,
     padded_object_grasps,
+    pyramid,
     rescored,
     top_grasp_right,
 )
@@ -364,3 +367,38 @@ def test_the_regression_radius_trains_the_regression_of_the_candidates_near_a_gr
     assert bool((wide.positive <= wide.regressed).all()) and int(wide.regressed.sum()) > int(wide.positive.sum())
     with pytest.raises(ValueError, match="roi"):
         build_model("fcgn-task", "resnet18", grasp_regression_radius=1.0, **SMALL)
+
+
+def test_the_fine_map_reaches_the_grasp_head_only(batch):
+    images, targets, _ = batch
+    model = build_model("tog", "resnet18", grasp_fine_map=True, fpn_min_stride=8, fpn_max_stride=16,
+                        rpn_anchor_sizes=(16, 32, 64), box_score_threshold=0.0, **SMALL)
+    features = model.backbone(torch.stack(images))
+    # C2 at stride 4 beside the FPN maps; the RPN is given the FPN maps alone
+    assert features[FINE_MAP].shape[1:] == (C2_CHANNELS["resnet18"], 96 // 4, 96 // 4)
+    assert list(pyramid(features)) == ["0", "1", "pool"]
+    model.train()
+    model(images, targets)["grasp_stability"].backward()
+    # the grasp loss trains the projection of C2 and reaches C2 through it
+    assert float(model.grasp_head.fine_entry[0].weight.grad.abs().sum()) > 0
+    assert float(model.backbone.body.layer1[0].conv1.weight.grad.abs().sum()) > 0
+    model.zero_grad()
+    model(images, targets)["rcnn_class"].backward()
+    assert model.grasp_head.fine_entry[0].weight.grad is None or not model.grasp_head.fine_entry[0].weight.grad.any()
+    # changing C2's projection changes the candidates and leaves the boxes as they were
+    model.eval()
+    with torch.no_grad():
+        before = model(images)
+        model.grasp_head.fine_entry[1].bias.add_(1.0)
+        after = model(images)
+    assert sum(len(output["boxes"]) for output in before) > 0
+    for first, second in zip(before, after, strict=True):
+        assert torch.equal(first["boxes"], second["boxes"])
+        assert not torch.equal(first["grasp_stability"], second["grasp_stability"])
+    head = GraspHead(16, 16, "group", fine_channels=8)
+    with pytest.raises(ValueError, match="C2"):
+        head(torch.randn(2, 16, 7, 7))
+    with pytest.raises(ValueError, match="fpn_min_stride 8"):
+        build_model("tog", "resnet18", grasp_fine_map=True, **SMALL)
+    with pytest.raises(ValueError, match="roi"):
+        build_model("fcgn-task", "resnet18", grasp_fine_map=True, fpn_min_stride=8, **SMALL)
