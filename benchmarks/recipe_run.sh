@@ -4,17 +4,21 @@
 # baseline), then benchmarks/score_run.sh (both protocols of togcrf eval, grasp_ranking.py) on the 206 test samples;
 # with VIEWS=N also `togcrf eval --views N`, with TOP1_CELLS=1 also
 # docs/results/regression-radius-2026-11-29/top1_cells.py. The run goes to OUT/tog, its output to OUT/train.out and
-# OUT/score.out, the dates of its steps to OUT/dates.log. SEED (default 0) picks the seed.
+# OUT/score.out, the dates of its steps to OUT/dates.log. SEED (default 0) picks the seed. MINUTES (default 60) is
+# the time budget; MINUTES=0 trains without one, for the --epochs given (the cosine then follows the steps, so the run
+# sees the same images on any machine). THREADS (default 2) sets torch's threads: 1 for two runs side by side.
 #
 #     benchmarks/recipe_run.sh OUT [TRAIN ARGUMENTS...]
 #     VIEWS=8 TOP1_CELLS=1 benchmarks/recipe_run.sh runs/fine-map-seed0 --option grasp_fine_map=true
+#     MINUTES=0 THREADS=1 benchmarks/recipe_run.sh runs/fine-map-12epochs --epochs 12 --option grasp_fine_map=true
 OUT=${1:?usage: benchmarks/recipe_run.sh OUT [TRAIN ARGUMENTS...]}
 shift
 cd "$(dirname "$0")/.."
 mkdir -p "$OUT"
 source docs/results/confidence-head-2026-11-28/recipe-options.sh
+export OMP_NUM_THREADS=${THREADS:-2} MKL_NUM_THREADS=${THREADS:-2}
 log "train start"
-.venv/bin/togcrf train $COMMON $OPTS "$@" --lr 1e-3 --warmup-steps 200 --time-budget 60 --out "$OUT/tog" \
+.venv/bin/togcrf train $COMMON $OPTS "$@" --lr 1e-3 --warmup-steps 200 --time-budget "${MINUTES:-60}" --out "$OUT/tog" \
   > "$OUT/train.out" 2>&1 || exit 1
 log "train end"
 benchmarks/score_run.sh "$OUT/tog/checkpoint.pt" > "$OUT/score.out" 2>&1
