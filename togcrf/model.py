@@ -259,10 +259,10 @@ class ModelOptions:
         the stride-8 map, so a 40 px tool spans 5 feature pixels for its 7
         grasp cells, and 43 % of the wrong top-1 candidates lie one cell from
         an annotated grasp. Needs ``fpn_min_stride`` 8 (at 4, C2 is the
-        finest FPN level already). Measured, not adopted: mAP-G 29.1 against
-        26.9 in a 60-minute A/B that gave it 21 % more images, the top-1
-        match 59.6 % against 58.4 % (docs/togcrf-evaluation.md, "ResNet C2
-        for the grasp head").
+        finest FPN level already). Measured, not adopted: at the same 48,440
+        images mAP-G 26.9 against 25.6 and Acc-T top-1 61.5 against 63.6, one
+        seed (docs/togcrf-evaluation.md, "ResNet C2 for the grasp head at the
+        same number of images").
     grasp_rois_per_image : int
         Foreground RoIs per image that train the grasp branch.
     grasp_channels : int
