@@ -223,7 +223,11 @@ class ModelOptions:
         42.3 at its mAP of 49.2 (``benchmarks/grasp_ranking.py``, "grasp
         oracle", docs/togcrf-evaluation.md). At 1.0 in a 60-minute A/B it
         raised the top-1 match from 57.3 to 59.9 % but cost 7 points of box
-        mAP and 1.4 of mAP-G: not in the recipe.
+        mAP and 1.4 of mAP-G. At 0.2, in the CPU recipe since 2026-11-29: at
+        the same 48,440 images, mAP-G 27.5 and 29.8 against 25.6 and 22.9
+        (seeds 0 and 1), box mAP -0.4 and +0.9 (docs/togcrf-evaluation.md,
+        "The top-1 ranking term at weight 0.2 at the images of a 60-minute
+        run").
     grasp_confidence : bool
         The "roi" grasp head also predicts, per RoI, whether its top-1
         candidate matches one of its object's ground-truth grasps
