@@ -8,8 +8,8 @@ cd "$(dirname "$0")/../../.."
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
 RUN60="runs/recipe-ranking-60min-seed0/tog/checkpoint.pt runs/recipe-ranking-60min-seed1/tog/checkpoint.pt"
 RUN28="runs/ranking-0.2-28epochs-seed0/tog/checkpoint.pt runs/ranking-0.2-28epochs-seed1/tog/checkpoint.pt"
-ROBOT="--config pipelines/recipe.toml --data data --workers 2 --no-pictures --baselines ''"
-eval .venv/bin/togcrf robot-eval $RUN60 $ROBOT --out runs/robot-ranking60-views1
-eval .venv/bin/togcrf robot-eval $RUN60 $RUN28 $ROBOT --views 8 --out runs/robot-ranking-views8
+ROBOT=(--config pipelines/recipe.toml --data data --workers 2 --no-pictures --baselines '')
+.venv/bin/togcrf robot-eval $RUN60 "${ROBOT[@]}" --out runs/robot-ranking60-views1
+.venv/bin/togcrf robot-eval $RUN60 $RUN28 "${ROBOT[@]}" --views 8 --out runs/robot-ranking-views8
 .venv/bin/togcrf robot-table runs/robot-ranking-views1/trials.parquet runs/robot-ranking60-views1/trials.parquet \
   runs/robot-ranking-views8/trials.parquet --out runs/robot-ranking-60min
