@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from itertools import islice
@@ -66,7 +67,7 @@ import numpy as np
 import torch
 
 from osgd.contract.samples import iter_samples, sample_shards
-from togcrf.anchors import ANCHOR_ANGLES, GRID
+from togcrf.anchors import ANCHOR_ANGLES
 from togcrf.checkpoint import load_checkpoint
 from togcrf.evaluate import TABLE_COLUMNS
 from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator, box_iou, grasp_match_matrix
@@ -81,19 +82,20 @@ def neighbourhood_mean(stability: np.ndarray, angle_radius: int) -> np.ndarray:
 
     Parameters
     ----------
-    stability : (K,) float, K = GRID * GRID * 4 in candidate order
+    stability : (K,) float, K = grid * grid * 4 in candidate order (grid: 7, or the model's ``grasp_grid``)
 
     Returns
     -------
     (K,) float
     """
     angles = len(ANCHOR_ANGLES)
-    grid = stability.reshape(GRID, GRID, angles)
-    padded = np.pad(grid, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
+    side = math.isqrt(len(stability) // angles)
+    cells = stability.reshape(side, side, angles)
+    padded = np.pad(cells, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
     stacked = []
     for row in range(3):
         for column in range(3):
-            window = padded[row:row + GRID, column:column + GRID]
+            window = padded[row:row + side, column:column + side]
             stacked.extend(np.roll(window, shift, axis=2) for shift in range(-angle_radius, angle_radius + 1))
     return np.nanmean(np.stack(stacked), axis=0).reshape(-1)
 

@@ -402,3 +402,43 @@ def test_the_fine_map_reaches_the_grasp_head_only(batch):
         build_model("tog", "resnet18", grasp_fine_map=True, **SMALL)
     with pytest.raises(ValueError, match="roi"):
         build_model("fcgn-task", "resnet18", grasp_fine_map=True, fpn_min_stride=8, **SMALL)
+
+
+def test_a_finer_grasp_grid_gives_each_roi_more_candidates(batch):
+    images, targets, _ = batch
+    seen = {}
+    for grid in (7, 14):
+        torch.manual_seed(0)
+        model = build_model("tog-crfs", "resnet18", grasp_grid=grid, box_score_threshold=0.0, **SMALL)
+        model.train()
+        original = model._grasp_losses
+
+        def keep(outputs, grasp_targets, grid=grid, original=original):
+            seen[grid] = (outputs, grasp_targets)
+            return original(outputs, grasp_targets)
+
+        model._grasp_losses = keep
+        losses = model(images, targets)
+        assert all(math.isfinite(float(value.detach())) for value in losses.values())
+        losses["grasp_stability"].backward()
+        assert float(model.grasp_head.stability.weight.grad.abs().sum()) > 0
+        model.eval()
+        with torch.no_grad():
+            outputs = model(images)
+        assert sum(len(output["boxes"]) for output in outputs) > 0
+        for output in outputs:
+            assert output["grasp_stability"].shape[1] == grid * grid * 4
+            assert output["grasps"].shape[1:] == (grid * grid * 4, 5)
+    coarse, fine = seen[7], seen[14]
+    assert fine[0].anchors.shape[1] == 14 * 14 * 4 and fine[0].stability.shape[1] == 14 * 14 * 4
+    # the same RoIs (one seed): the cells of the finer grid are half as wide, and no fewer candidates are
+    # positive (grasps that shared a 7 x 7 cell may fall into different ones)
+    def step(anchors):  # from the first cell of each RoI to the next one in its row
+        return anchors[:, 4, 0] - anchors[:, 0, 0]
+
+    torch.testing.assert_close(2 * step(fine[0].anchors), step(coarse[0].anchors))
+    assert int(fine[1].positive.sum()) >= int(coarse[1].positive.sum()) > 0
+    with pytest.raises(ValueError, match="grasp_grid"):
+        build_model("fcgn-task", "resnet18", grasp_grid=14, **SMALL)
+    with pytest.raises(ValueError, match="grasp_grid"):
+        build_model("tog", "resnet18", grasp_grid=0, **SMALL)

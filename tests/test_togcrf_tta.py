@@ -63,15 +63,17 @@ def test_boxes_are_carried_by_their_edges(view) -> None:
         assert left.tolist() == [70.0, 10.0, 100.0, 20.0]
 
 
+@pytest.mark.parametrize("grid", [7, 14])
 @pytest.mark.parametrize("view", VIEWS)
-def test_candidates_land_on_the_anchors_of_the_carried_box(view) -> None:
-    """Candidate c of a box is, moved into the view, anchor perm[c] of the box carried into the view."""
+def test_candidates_land_on_the_anchors_of_the_carried_box(view, grid) -> None:
+    """Candidate c of a box is, moved into the view, anchor perm[c] of the box carried into the view (on the
+    paper's 7 x 7 cells and on a finer ``grasp_grid``)."""
     shape = (80, 100)  # not square, so that a turn matters
     box = torch.tensor([[10.0, 20.0, 61.0, 45.0]])
-    anchors = roi_anchors(box, 10.0)[0].double().numpy()
-    moved_anchors = roi_anchors(view_boxes(box, shape, view), 10.0)[0].double().numpy()
-    order = candidate_permutation(view).numpy()
-    assert sorted(order) == list(range(len(anchors)))  # a permutation
+    anchors = roi_anchors(box, 10.0, grid)[0].double().numpy()
+    moved_anchors = roi_anchors(view_boxes(box, shape, view), 10.0, grid)[0].double().numpy()
+    order = candidate_permutation(view, grid).numpy()
+    assert len(order) == grid * grid * 4 and sorted(order) == list(range(len(anchors)))  # a permutation
     centres = transform_points(anchors[:, :2], (shape[0] + 1, shape[1] + 1), view, 1.0)  # edges: W - x
     np.testing.assert_allclose(moved_anchors[order, :2], centres, atol=1e-4)
     gap = np.remainder(moved_anchors[order, 4] - transform_angles(anchors[:, 4], view) + math.pi / 2, math.pi)

@@ -267,6 +267,21 @@ class ModelOptions:
         images mAP-G 26.9 against 25.6 and Acc-T top-1 61.5 against 63.6, one
         seed (docs/togcrf-evaluation.md, "ResNet C2 for the grasp head at the
         same number of images").
+    grasp_grid : int
+        Cells per side of the "roi" grasp head's candidates (4 anchor angles
+        per cell; 7: the paper's 7 x 7 x 4 = 196). The head's trunk runs on
+        the 7 x 7 pooled RoI as always; with another grid its output is
+        resized to ``grasp_grid`` x ``grasp_grid`` (bilinear) before the
+        output convolutions, and the anchors, the matching and the CRF use
+        the finer cells. Our addition (issue #15): at the recipe's 160 px a
+        cell measures about 10 px, as much as the rows of annotated grasps
+        are apart, while the regression moves a candidate's centre by a
+        median 1.2 px; a sixth of the claimed objects get a top-1 that
+        overlaps one of their grasps at its angle but misses it by about half
+        a finger width (docs/togcrf-evaluation.md, "Where the top-1 misses").
+        Measured, not adopted: at 14 (with ``grasp_ignore_radius`` 0.5), mAP-G
+        29.2 against 29.9 and as many near misses, one seed at 16 % fewer
+        images (docs/togcrf-evaluation.md, "A finer grid of grasp candidates").
     grasp_rois_per_image : int
         Foreground RoIs per image that train the grasp branch.
     grasp_channels : int
@@ -308,6 +323,7 @@ class ModelOptions:
     grasp_confidence_trains_features: bool = False
     grasp_stability_per_category: bool = False
     grasp_fine_map: bool = False
+    grasp_grid: int = GRID
     grasp_rois_per_image: int = 16
     grasp_channels: int = 256
     crf_iterations: int = DEFAULT_ITERATIONS
@@ -538,15 +554,20 @@ class GraspHead(nn.Module):
     one per RoI (R,) (:class:`TopGraspConfidence`). With ``fine_channels``, a
     second pooled map (R, fine_channels, H, W) (ResNet C2,
     ``ModelOptions.grasp_fine_map``) is projected, normalised and added to
-    the first before the ResBlocks.
+    the first before the ResBlocks. With ``grid``, the ResBlocks' output is
+    resized to ``grid`` x ``grid`` (bilinear) before the output
+    convolutions (``ModelOptions.grasp_grid``), so a RoI has
+    ``grid * grid * 4`` candidates; None keeps the input's size.
     """
 
     def __init__(self, in_channels: int, channels: int, norm: str, task_count: int = len(TASKS),
                  blocks: int = 3, output_norm: bool = True, object_map: bool = False,
                  confidence: bool = False, confidence_trains_features: bool = False,
-                 stability_categories: int = 1, fine_channels: int = 0) -> None:
+                 stability_categories: int = 1, fine_channels: int = 0, grid: int | None = None) -> None:
         super().__init__()
         self.anchors = len(ANCHOR_ANGLES)
+        #: Cells per side of the candidates (None: the input's own; ``ModelOptions.grasp_grid``).
+        self.grid = grid
         self.task_count = task_count
         #: Pairs of stability logits per candidate: 1, or one per category (``grasp_stability_per_category``).
         self.stability_categories = stability_categories
@@ -566,7 +587,8 @@ class GraspHead(nn.Module):
                 nn.init.normal_(layer.weight, std=0.01)
                 nn.init.zeros_(layer.bias)
         #: The logit that the top-1 candidate is right (``ModelOptions.grasp_confidence``).
-        self.confidence = TopGraspConfidence(channels, self.anchors, trains_features=confidence_trains_features) if (
+        self.confidence = TopGraspConfidence(channels, self.anchors, grid or GRID,
+                                             trains_features=confidence_trains_features) if (
             confidence) else None
 
     def _per_candidate(self, output: torch.Tensor, width: int) -> torch.Tensor:
@@ -597,6 +619,9 @@ class GraspHead(nn.Module):
                 raise ValueError("grasp_fine_map: the grasp head needs each RoI's pooled ResNet C2")
             features = features + self.fine_entry(fine.to(features.dtype))
         features = self.blocks(features)
+        if self.grid is not None and features.shape[-2:] != (self.grid, self.grid):
+            features = functional.interpolate(features, size=(self.grid, self.grid), mode="bilinear",
+                                              align_corners=False)
         object_map = None if self.object_map is None else self.object_map(features).flatten(start_dim=1)
         stability = self._stability(features, categories)
         confidence = None if self.confidence is None else self.confidence(
@@ -793,7 +818,7 @@ def build_grasp_head(grasp_branch: str, options: ModelOptions, backbone: str = "
                      confidence=options.grasp_confidence,
                      confidence_trains_features=options.grasp_confidence_trains_features,
                      stability_categories=len(CATEGORIES) if options.grasp_stability_per_category else 1,
-                     fine_channels=C2_CHANNELS[backbone] if options.grasp_fine_map else 0)
+                     fine_channels=C2_CHANNELS[backbone] if options.grasp_fine_map else 0, grid=options.grasp_grid)
 
 
 def grasp_training_rois(proposals: list[torch.Tensor], labels: list[torch.Tensor], matched: list[torch.Tensor],
@@ -989,6 +1014,9 @@ class GraspDetector(nn.Module):
             if grasp_branch == "image" and getattr(options, option):
                 raise ValueError(f"{option} needs RoIs: it is an option of the \"roi\" grasp branch (TOG, "
                                  "TOG-CRFs), not of FCGN + Task")
+        if options.grasp_grid < 1 or (grasp_branch == "image" and options.grasp_grid != GRID):
+            raise ValueError(f"grasp_grid {options.grasp_grid}: expected a whole number of cells of at least 1, "
+                             f"for the \"roi\" grasp branch (TOG, TOG-CRFs) only ({GRID} otherwise)")
         self.backbone = build_backbone(backbone, options.norm, options.fpn_channels, options.fpn_min_stride,
                                        options.fpn_norm, options.fpn_max_stride, options.grasp_fine_map)
         self.rpn = build_rpn(options)
@@ -996,7 +1024,7 @@ class GraspDetector(nn.Module):
         self.grasp_head = build_grasp_head(grasp_branch, options, backbone)
         self.crf = None if crf_terms is None else MeanFieldCrf(
             len(TASKS), use_omega=crf_terms[0], use_mu=crf_terms[1],
-            iterations=options.crf_iterations, bandwidth=options.crf_bandwidth,
+            iterations=options.crf_iterations, bandwidth=options.crf_bandwidth, grid=options.grasp_grid,
         )
         #: Counts of the last training step for on-the-fly metrics: {"acc_t_hits", "acc_t_rois"}.
         self.last_training_stats: dict[str, int] = {}
@@ -1018,7 +1046,7 @@ class GraspDetector(nn.Module):
         Returns
         -------
         GraspOutputs
-            R = all RoIs, K = 196; anchors (R, 196, 5).
+            R = all RoIs, K = ``grasp_grid`` ** 2 * 4 (196 on the paper's 7 x 7 cells); anchors (R, K, 5).
         """
         pooled = self.roi_heads.box_roi_pool(features, rois, image_sizes)
         fine = None if FINE_MAP not in features else roi_align_fast_backward(
@@ -1027,7 +1055,7 @@ class GraspDetector(nn.Module):
         categories = None if labels is None else torch.cat(labels).long() - 1
         regression, stability, task_logits, object_map, confidence = self.grasp_head(pooled, categories, fine)
         all_rois = torch.cat(rois) if rois else pooled.new_zeros((0, 4))
-        anchors = roi_anchors(all_rois.float(), self.options.grasp_anchor_size)
+        anchors = roi_anchors(all_rois.float(), self.options.grasp_anchor_size, self.options.grasp_grid)
         return GraspOutputs(regression, stability, self.task_log_probs(task_logits), anchors, object_map, confidence)
 
     def image_grasp_outputs(self, features: dict[str, torch.Tensor]) -> GraspOutputs:
@@ -1117,16 +1145,17 @@ class GraspDetector(nn.Module):
         owner_labels = torch.cat([target["labels"] for target in targets])[owners]
         outputs = self.grasp_outputs(features, rois, image_sizes, [owner_labels])
         roi_boxes, owner_grasps = torch.cat(rois).float(), grasps[owners].float()
+        grid = options.grasp_grid
         positive, regression_targets, task_targets = match(
-            outputs.anchors, roi_boxes, owner_grasps, valid[owners], tasks[owners], len(TASKS),
+            outputs.anchors, roi_boxes, owner_grasps, valid[owners], tasks[owners], len(TASKS), grid,
             positive_radius=options.grasp_positive_radius)
         ignored = None if options.grasp_ignore_radius is None else near_ground_truth(
-            outputs.anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_ignore_radius)
+            outputs.anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_ignore_radius, grid)
         regressed = None
         if options.grasp_regression_radius > 0:
             regressed, regression_targets = regression_targets_within(
-                outputs.anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_regression_radius)
-        object_map = object_map_targets(targets, roi_boxes, owners) if options.grasp_object_map else None
+                outputs.anchors, roi_boxes, owner_grasps, valid[owners], options.grasp_regression_radius, grid)
+        object_map = object_map_targets(targets, roi_boxes, owners, grid) if options.grasp_object_map else None
         confidence = None if outputs.confidence is None else top_grasp_right(outputs, owner_grasps, valid[owners])
         return outputs, GraspTargets(positive, regression_targets, task_targets, ignored, object_map, confidence,
                                      regressed)
@@ -1151,7 +1180,7 @@ class GraspDetector(nn.Module):
 
     def _roi_detections(self, features: dict[str, torch.Tensor], detections: list[dict[str, torch.Tensor]],
                         image_sizes: list[tuple[int, int]]) -> list[dict[str, torch.Tensor]]:
-        """The "roi" branch in eval mode: the 196 candidates of each detected box."""
+        """The "roi" branch in eval mode: the candidates of each detected box (196 on 7 x 7 cells)."""
         counts = [len(detection["boxes"]) for detection in detections]
         outputs = self.grasp_outputs(features, [detection["boxes"] for detection in detections], image_sizes,
                                      [detection["labels"] for detection in detections])

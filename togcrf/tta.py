@@ -77,38 +77,39 @@ def view_boxes(boxes: torch.Tensor, shape: tuple[int, int], view: Augmentation) 
     return torch.cat([moved.amin(dim=0), moved.amax(dim=0)], dim=1).to(boxes)
 
 
-@lru_cache(maxsize=len(VIEWS))
-def candidate_permutation(view: Augmentation) -> torch.Tensor:
-    """``(196,)`` long: entry ``c`` is the index, in a view's RoI, of candidate ``c`` of the RoI as given
-    (computed once per view; callers must not modify it).
+@lru_cache(maxsize=4 * len(VIEWS))
+def candidate_permutation(view: Augmentation, grid: int = GRID) -> torch.Tensor:
+    """``(grid * grid * 4,)`` long (196 on the paper's 7 x 7 cells): entry ``c`` is the index, in a view's RoI,
+    of candidate ``c`` of the RoI as given (computed once per view and grid; callers must not modify it).
 
-    Candidate ``(i * 7 + j) * 4 + a`` is cell row i, column j, anchor angle a
-    (:mod:`togcrf.anchors`). The cells move as the pixels of a 7 x 7 image
+    Candidate ``(i * grid + j) * 4 + a`` is cell row i, column j, anchor angle a
+    (:mod:`togcrf.anchors`). The cells move as the pixels of a grid x grid image
     (:func:`togcrf.data.transform_points`), the angles as grasp angles
     (:func:`togcrf.data.transform_angles`); both anchor sets are symmetric
     under the views, so every candidate lands on one.
     """
-    rows, columns = np.meshgrid(np.arange(GRID), np.arange(GRID), indexing="ij")
+    rows, columns = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
     cells = np.stack([columns.ravel(), rows.ravel()], axis=1).astype(np.float64)
-    moved = np.rint(transform_points(cells, (GRID, GRID), view, 1.0)).astype(np.int64)
+    moved = np.rint(transform_points(cells, (grid, grid), view, 1.0)).astype(np.int64)
     angles = np.asarray(ANCHOR_ANGLES)
     turned = transform_angles(angles, view)
     gap = np.abs(np.remainder(turned[:, None] - angles[None, :] + np.pi / 2, np.pi) - np.pi / 2)
     anchor = gap.argmin(axis=1)
-    cell = moved[:, 1] * GRID + moved[:, 0]
+    cell = moved[:, 1] * grid + moved[:, 0]
     return torch.from_numpy((cell[:, None] * len(angles) + anchor[None, :]).ravel())
 
 
 def view_grasps(model: torch.nn.Module, image: torch.Tensor, boxes: torch.Tensor, labels: torch.Tensor,
                 view: Augmentation) -> tuple[torch.Tensor, torch.Tensor]:
-    """P(stable) ``(N, 196)`` and task probabilities ``(N, 196, T)`` of ``(N, 4)`` boxes with their ``(N,)``
-    labels (the detector's, category index + 1) seen in one view, in the candidate order of the image as given."""
+    """P(stable) ``(N, K)`` and task probabilities ``(N, K, T)`` (K = 196 on 7 x 7 cells) of ``(N, 4)`` boxes
+    with their ``(N,)`` labels (the detector's, category index + 1) seen in one view, in the candidate order of
+    the image as given."""
     seen = view_image(image, view)
     images = batch_images([seen])
     features = model.backbone(images.tensors)
     outputs = model.grasp_outputs(features, [view_boxes(boxes, tuple(image.shape[-2:]), view)], images.image_sizes,
                                   [labels])
-    order = candidate_permutation(view).to(boxes.device)
+    order = candidate_permutation(view, model.options.grasp_grid).to(boxes.device)
     stable = stable_probability(outputs.stability, outputs.object_map)
     return stable[:, order], outputs.task_log_probs.exp()[:, order]
 
