@@ -64,11 +64,10 @@ def group_of(top: np.ndarray, grasps: np.ndarray) -> str:
     return "near" if (close & (rectangle_jaccard(top[None], grasps)[0] > 0)).any() else "far"
 
 
-def cells(box: np.ndarray, points: np.ndarray, grid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(row, column) of the grid x grid cell of each (n, 2) point in ``box``, the cell centres and the cell size."""
+def cells(box: np.ndarray, points: np.ndarray, grid: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) of the grid x grid cell of each (n, 2) point in ``box``, and the cell size (x, y)."""
     size = (box[2:] - box[:2]) / grid
-    column_row = np.floor((points - box[:2]) / size).astype(int)
-    return column_row[:, ::-1], box[:2] + (column_row + 0.5) * size, size
+    return np.floor((points - box[:2]) / size).astype(int)[:, ::-1], size
 
 
 def crop(sample: Sample, detections: Detections, detection: int, target: int, grasps: np.ndarray,
@@ -117,9 +116,8 @@ def tally(detections: Detections, truth: GroundTruth, sample: Sample, records: d
         top_index = int(np.argmax(detections.grasp_stability[detection]))
         top = candidates[top_index]
         group = group_of(top, grasps)
-        _, _, size = cells(box, top[None, :2], grid)
         top_cell = np.array(divmod(top_index // len(angles), grid))
-        grasp_cells, _, _ = cells(box, grasps[:, :2], grid)
+        grasp_cells, size = cells(box, grasps[:, :2], grid)
         distance = np.abs(grasp_cells - top_cell).max(axis=1).min()
         shift = np.linalg.norm(top[:2] - (box[:2] + (top_cell[::-1] + 0.5) * size))
         records[group].append((float(size.mean()), float(shift), int(distance)))
