@@ -15,6 +15,8 @@ invocation, so the ratio compares like with like on one machine:
 - ``recipe``: ``togcrf.reproduce.CPU_SCALE`` (its model options, batch size,
   image size, scale jitter, optimiser and precision): since 2026-11-27 the
   ResNet stops after C4 and the images are 160 px;
+- ``recipe-16-rois``: the recipe until the evening of 2026-11-29, its
+  grasp head trained on up to 16 foreground RoIs per image (since then 8);
 - ``recipe-tv-roialign``: the recipe with torchvision's RoIAlign backward
   instead of :mod:`togcrf.roi_align`'s sparse one (``before`` runs
   torchvision's too, as at 4bf0b66);
@@ -24,7 +26,16 @@ invocation, so the ratio compares like with like on one machine:
   recipe runs in float32 and the two are the same configuration). Each
   child's line names the precision it ran in.
 
-``--only`` picks some of them (the ratios are printed for those present).
+``--only`` picks some of them (the ratios are printed for those present;
+``recipe-float32 / before`` is the speed-up a CPU without native bfloat16
+gets).
+
+To see what a CPU without AVX-512 gets on one that has it, cap the
+instruction sets of oneDNN (the convolutions) and of ATen's own kernels
+(``INSTRUCTION_SET_CAPS``; the header then names the caps)::
+
+    ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 python benchmarks/bench_train.py --data data \
+        --pipeline recipe --only before recipe-float32
 
 Each configuration steps its own optimiser, built as ``togcrf train`` builds
 it (``togcrf.train.build_optimizer``): SGD with momentum before the recipe,
@@ -46,6 +57,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -55,6 +67,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+#: Environment variables that cap the instruction set torch uses on the CPU: oneDNN's (its documented
+#: ``ONEDNN_MAX_CPU_ISA``) and ATen's vectorised kernels' (``ATEN_CPU_CAPABILITY``: default, avx2, avx512).
+INSTRUCTION_SET_CAPS = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY")
 
 #: Distinct batches a child cycles through (their image sizes differ with the scale jitter).
 BATCHES = 4
@@ -77,12 +93,13 @@ def configurations() -> dict[str, dict]:
               "cpu_bf16": CPU_SCALE.cpu_bf16}
     until_2026_11_27 = {**recipe, "image_size": 192, "cpu_bf16": False, "model_options": {
         **recipe["model_options"], "fpn_max_stride": 32, "rpn_anchor_sizes": (16, 32, 64, 128),
-        "grasp_anchor_size": 12.0}}
+        "grasp_anchor_size": 12.0, "grasp_rois_per_image": 16}}
     return {
         "before": {"model_options": BEFORE_OPTIONS, "batch_size": 2, "image_size": 192, "jitter_up": 0.1,
                    "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01, "torchvision_roi_align": True,
                    "cpu_bf16": False},
         "recipe-192-c5": until_2026_11_27,
+        "recipe-16-rois": {**recipe, "model_options": {**recipe["model_options"], "grasp_rois_per_image": 16}},
         "recipe-tv-roialign": {**recipe, "torchvision_roi_align": True},
         "recipe-float32": {**recipe, "cpu_bf16": False},
         "recipe": recipe,
@@ -232,7 +249,8 @@ def main() -> None:
         child(arguments)
         return
     print(f"TOG training on the CPU, {arguments.backbone}, {arguments.steps} timed steps after "
-          f"{arguments.warmup}, {'samples of ' + arguments.data if arguments.data else 'synthetic samples'}")
+          f"{arguments.warmup}, {'samples of ' + arguments.data if arguments.data else 'synthetic samples'}"
+          + "".join(f", {name}={os.environ[name]}" for name in INSTRUCTION_SET_CAPS if os.environ.get(name)))
     print(f"{'configuration':<20} {'batch':>5} {'s/step':>8} {'img/s':>8} {'peak RSS MiB':>13} {'params M':>9} "
           f"{'precision':>9}")
     results = {}
@@ -249,10 +267,12 @@ def main() -> None:
         print(f"{name:<20} {result['batch_size']:>5} {result['seconds_per_step']:>8.2f} "
               f"{result['images_per_second']:>8.2f} {result['peak_rss_mib']:>13.0f} "
               f"{result['parameters_millions']:>9.1f} {result['precision']:>9}")
-    for baseline in ("before", "recipe-192-c5", "recipe-tv-roialign", "recipe-float32"):
-        if "recipe" in results and baseline in results:
-            ratio = results["recipe"]["images_per_second"] / results[baseline]["images_per_second"]
-            print(f"recipe / {baseline}: {ratio:.2f}x images per second")
+    pairs = [("recipe", baseline) for baseline in ("before", "recipe-192-c5", "recipe-16-rois",
+                                                    "recipe-tv-roialign", "recipe-float32")]
+    for faster, baseline in [*pairs, ("recipe-float32", "before")]:
+        if faster in results and baseline in results:
+            ratio = results[faster]["images_per_second"] / results[baseline]["images_per_second"]
+            print(f"{faster} / {baseline}: {ratio:.2f}x images per second")
 
 
 if __name__ == "__main__":

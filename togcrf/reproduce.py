@@ -126,12 +126,14 @@ SMALL_SCALE = Scale("resnet18", 8, 192, 64, 32, 2, warmup_steps=16, lr=0.01)
 #: anchors of 27, 53 and 107 px for boxes of 20-120 px (median 60) at 160 px, and 10 px grasp anchors,
 #: ROI-GD's 12 px (REFERENCE section 3) scaled from the 192 px they were measured at (openings and
 #: finger widths of 8-14 px there) to 160 px. Since 2026-11-29 the stability loss also has the top-1 ranking
-#: term at weight 0.2 (mAP-G +1.9 and +6.9 at the images of a 60-minute run, seeds 0 and 1).
+#: term at weight 0.2 (mAP-G +1.9 and +6.9 at the images of a 60-minute run, seeds 0 and 1), and since the
+#: evening of that day the grasp head trains on up to 8 foreground RoIs per image instead of 16 (1.18 times
+#: the images in 60 minutes, the same mAP-G with two seeds; benchmarks/bench_train.py ``recipe-16-rois``).
 CPU_MODEL_OPTIONS = (
     ("fpn_min_stride", 8), ("fpn_max_stride", 16), ("rpn_anchor_sizes", (27, 53, 107)), ("fpn_channels", 128),
     ("box_batch_per_image", 64), ("box_head_size", 256), ("grasp_channels", 128),
     ("rpn_pre_nms_train", 500), ("rpn_post_nms_train", 250), ("grasp_anchor_size", 10.0),
-    ("grasp_ranking_weight", 0.2),
+    ("grasp_ranking_weight", 0.2), ("grasp_rois_per_image", 8),
 )
 
 #: The CPU recipe: one hour of training per model on 2 cores, ResNet-18 (up to C4) from scratch at 160 px,
