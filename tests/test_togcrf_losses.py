@@ -122,6 +122,15 @@ def test_grasp_losses_add_the_weighted_ranking_term_to_the_stability_loss_only()
     assert float(ranked["grasp_stability"]) > float(plain["grasp_stability"])
     for key in ("grasp_regression", "grasp_task"):
         assert float(ranked[key]) == float(plain[key])
+    # the ranking term's own targets (grasp_ranking_matches): they change the term, not the cross entropy
+    matching = torch.zeros_like(positive)
+    matching[0, 4] = matching[1, 1] = True
+    rematched = grasp_losses(*arguments, ranking_weight=0.5, ranked=matching)
+    expected = plain["grasp_stability"] + 0.5 * top1_ranking_loss(stability, matching)
+    assert abs(float(rematched["grasp_stability"]) - float(expected)) < 1e-6
+    assert float(rematched["grasp_stability"]) != float(ranked["grasp_stability"])
+    assert float(grasp_losses(*arguments, ranking_weight=0.5, ranked=positive)["grasp_stability"]) == float(
+        ranked["grasp_stability"])
 
 
 def test_grasp_losses_regress_the_given_candidates_and_keep_the_stability_of_the_positives():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -11,9 +12,10 @@ from helpers import write_synthetic_samples
 from osgd.contract.taxonomy import CATEGORIES
 from osgd.store import ShardStore
 from togcrf import evaluate, reproduce, train
-from togcrf.anchors import CANDIDATES_PER_ROI, roi_anchors
+from togcrf.anchors import CANDIDATES_PER_ROI, decode, roi_anchors
 from togcrf.data import SamplesDataset, collate
 from togcrf.losses import LOSS_KEYS
+from togcrf.metrics import grasp_match_matrix
 from togcrf.model import (
     C2_CHANNELS,
     FINE_MAP,
@@ -24,6 +26,7 @@ from togcrf.model import (
     GraspHead,
     GraspOutputs,
     build_model,
+    matching_candidates,
     object_map_targets,
     padded_object_grasps,
     pyramid,
@@ -270,6 +273,47 @@ def test_the_confidence_target_is_whether_the_top_candidate_matches_a_grasp_of_t
     owner_grasps[2, 0, 4] = 0.3  # 17 degrees: within the 30-degree tolerance
     assert top_grasp_right(outputs, owner_grasps, valid).tolist() == [1.0, 0.0, 1.0]
     assert top_grasp_right(one_candidate_outputs([]), owner_grasps[:0], valid[:0]).shape == (0,)
+
+
+def test_the_ranking_targets_are_the_candidates_that_match_a_grasp_of_the_rois_own_object():
+    outputs = one_candidate_outputs([0, 0])
+    # RoI 0: a grasp 30 px long halfway between candidates 3 and 4 (Jaccard 1/3 with each) and one on
+    # candidate 3 turned 40 degrees away; RoI 1: a grasp on candidate 3 turned 17 degrees, and padding on
+    # candidate 0.
+    owner_grasps = torch.tensor([[[70.0, 0, 30, 10, 0], [60.0, 0, 10, 10, 0.7]],
+                                 [[60.0, 0, 10, 10, 0.3], [0.0, 0, 10, 10, 0]]])
+    valid = torch.tensor([[True, True], [True, False]])
+    matching = matching_candidates(outputs, owner_grasps, valid)
+    assert matching.shape == (2, CANDIDATES_PER_ROI)
+    assert matching[0].nonzero().flatten().tolist() == [3, 4]
+    assert matching[1].nonzero().flatten().tolist() == [3]
+    # with regressed rectangles: the rule of grasp_match_matrix, candidate by candidate
+    generator = torch.Generator().manual_seed(0)
+    moved = outputs._replace(regression=0.3 * torch.randn((2, CANDIDATES_PER_ROI, 5), generator=generator))
+    expected = [grasp_match_matrix(decode(moved.regression[roi], moved.anchors[roi]).numpy(),
+                                   owner_grasps[roi][valid[roi]].numpy()).any(axis=1) for roi in range(2)]
+    moved_matching = matching_candidates(moved, owner_grasps, valid)
+    assert moved_matching.numpy().tolist() == [row.tolist() for row in expected]
+    assert moved_matching.any() and not torch.equal(moved_matching, matching)
+
+
+def test_the_ranking_term_on_matching_candidates_trains(batch):
+    torch.manual_seed(0)
+    images, targets, _ = batch
+    model = build_model("tog", "resnet18", grasp_ranking_weight=0.5, grasp_ranking_matches=True, **SMALL)
+    model.train()
+    torch.manual_seed(1)
+    losses = model(images, targets)
+    assert all(torch.isfinite(value) for value in losses.values())
+    losses["grasp_stability"].backward()
+    assert float(model.grasp_head.stability.weight.grad.abs().sum()) > 0
+    # the same weights and RoI sampling with the term on the positive anchors: only the stability loss differs
+    model.options = replace(model.options, grasp_ranking_matches=False)
+    torch.manual_seed(1)
+    with torch.no_grad():
+        on_anchors = model(images, targets)
+    assert float(on_anchors["grasp_stability"]) != float(losses["grasp_stability"].detach())
+    assert float(on_anchors["grasp_regression"]) == float(losses["grasp_regression"].detach())
 
 
 def test_rescored_detections_keep_their_class_scores():

@@ -108,6 +108,7 @@ def grasp_losses(
     ignored: torch.Tensor | None = None,
     ranking_weight: float = 0.0,
     regressed: torch.Tensor | None = None,
+    ranked: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """The three grasp losses over a batch of RoIs.
 
@@ -130,6 +131,8 @@ def grasp_losses(
         Weight of :func:`top1_ranking_loss`, added to the stability loss (0: the paper's loss).
     regressed : (R, K) bool, optional
         Candidates whose regression is trained, with ``regression_targets`` for each (None: the positives).
+    ranked : (R, K) bool, optional
+        Candidates the ranking term puts first (None: the positives).
 
     Returns
     -------
@@ -146,7 +149,8 @@ def grasp_losses(
     selected = hard_negative_selection(per_candidate, positive, negative_ratio, ignored)
     stability = (per_candidate * selected).sum() / selected.sum().clamp(min=1)
     if ranking_weight:
-        stability = stability + ranking_weight * top1_ranking_loss(stability_logits, positive)
+        ranked = positive if ranked is None else ranked
+        stability = stability + ranking_weight * top1_ranking_loss(stability_logits, ranked)
     positives = positive.sum().clamp(min=1)
     regressed = positive if regressed is None else regressed
     regression_loss = functional.smooth_l1_loss(

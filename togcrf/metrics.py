@@ -187,6 +187,23 @@ def _paired_jaccard(first: np.ndarray, second: np.ndarray) -> np.ndarray:
         return np.where(union > 0, intersection / union, 0.0)
 
 
+def paired_grasp_match(detected: np.ndarray, ground_truth: np.ndarray) -> np.ndarray:
+    """Whether grasp ``detected[i]`` matches ``ground_truth[i]``, by the rule of :func:`grasp_match_matrix`.
+
+    Parameters
+    ----------
+    detected, ground_truth : (P, 5) array
+
+    Returns
+    -------
+    (P,) bool array
+    """
+    detected = np.asarray(detected, dtype=np.float64).reshape(-1, 5)
+    ground_truth = np.asarray(ground_truth, dtype=np.float64).reshape(-1, 5)
+    angles_close = angle_difference(detected[:, 4], ground_truth[:, 4]) < GRASP_ANGLE_TOLERANCE
+    return angles_close & (_paired_jaccard(detected, ground_truth) > GRASP_JACCARD_THRESHOLD)
+
+
 def angle_difference(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     """Smallest difference of grasp angles, modulo 180 degrees.
 
