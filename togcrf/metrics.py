@@ -242,10 +242,10 @@ def grasp_match_matrix(detected: np.ndarray, ground_truth: np.ndarray) -> np.nda
     reach = (np.hypot(detected[:, 2], detected[:, 3])[:, None] + np.hypot(ground_truth[:, 2], ground_truth[:, 3])) / 2
     centre_distance = np.linalg.norm(detected[:, None, :2] - ground_truth[None, :, :2], axis=-1)
     rows, columns = np.nonzero(angles_close & (centre_distance < reach))
-    jaccard = np.zeros(angles_close.shape)
+    matches = np.zeros(angles_close.shape, dtype=bool)
     if len(rows):
-        jaccard[rows, columns] = _paired_jaccard(detected[rows], ground_truth[columns])
-    return angles_close & (jaccard > GRASP_JACCARD_THRESHOLD)
+        matches[rows, columns] = paired_grasp_match(detected[rows], ground_truth[columns])
+    return matches
 
 
 def box_iou(first: np.ndarray, second: np.ndarray, *, plus_one: bool = False) -> np.ndarray:

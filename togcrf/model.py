@@ -49,7 +49,6 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import NamedTuple
 
-import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional
@@ -78,7 +77,7 @@ from togcrf.anchors import (
 from togcrf.crf import DEFAULT_BANDWIDTH, DEFAULT_ITERATIONS, MeanFieldCrf
 from togcrf.fcgn import box_candidates, image_anchors, image_grasp_targets
 from togcrf.losses import DEFAULT_NEGATIVE_RATIO, LOSS_KEYS, binary_loss, grasp_losses, top1_task_hits
-from togcrf.metrics import GRASP_ANGLE_TOLERANCE, GRASP_JACCARD_THRESHOLD, grasp_match_matrix, paired_grasp_match
+from togcrf.metrics import GRASP_ANGLE_TOLERANCE, GRASP_JACCARD_THRESHOLD, paired_grasp_match
 from togcrf.roi_align import FastMultiScaleRoIAlign, convert_boxes_to_roi_format, roi_align_fast_backward
 
 logger = logging.getLogger(__name__)
@@ -909,7 +908,7 @@ def object_map_targets(targets: list[dict[str, torch.Tensor]], rois: torch.Tenso
 def top_grasp_right(outputs: GraspOutputs, owner_grasps: torch.Tensor, owner_valid: torch.Tensor) -> torch.Tensor:
     """Whether each training RoI's top-1 candidate is a right grasp: the target of ``grasp_confidence``.
 
-    Right as mAP-G judges a detection's top-1 grasp (``togcrf.metrics.grasp_match_matrix``: Jaccard
+    Right as mAP-G judges a detection's top-1 grasp (:func:`rectangles_matching`: Jaccard
     > 0.25 and angle within 30 degrees of one of the ground-truth grasps of the object the RoI is
     matched to), the top-1 ranked as at inference (:func:`stable_probability`).
 
@@ -932,11 +931,8 @@ def top_grasp_right(outputs: GraspOutputs, owner_grasps: torch.Tensor, owner_val
     with torch.no_grad():
         top = stable_probability(outputs.stability, outputs.object_map).argmax(dim=1)
         rows = torch.arange(rois, device=top.device)
-        rectangles = decode(outputs.regression[rows, top].float(), outputs.anchors[rows, top])
-    roi_of_grasp, _ = torch.nonzero(owner_valid, as_tuple=True)
-    matches = grasp_match_matrix(rectangles.cpu().numpy(), owner_grasps[owner_valid].float().cpu().numpy())
-    own = roi_of_grasp.cpu().numpy()[None, :] == np.arange(rois)[:, None]
-    return torch.from_numpy((matches & own).any(axis=1).astype(np.float32)).to(outputs.stability.device)
+        rectangles = decode(outputs.regression[rows, top].float(), outputs.anchors[rows, top].float())
+    return rectangles_matching(rectangles[:, None], owner_grasps, owner_valid)[:, 0].float()
 
 
 def matching_candidates(outputs: GraspOutputs, owner_grasps: torch.Tensor, owner_valid: torch.Tensor,
@@ -944,10 +940,8 @@ def matching_candidates(outputs: GraspOutputs, owner_grasps: torch.Tensor, owner
     """Which candidates of each training RoI match a ground-truth grasp of its object: the targets of
     ``grasp_ranking_matches``.
 
-    A candidate matches as mAP-G judges a detection's top-1 grasp (its regressed rectangle against the
-    grasps of the object the RoI is matched to, ``togcrf.metrics.paired_grasp_match``). Only the pairs that
-    could match go to the exact polygon test: close in angle, and with bounding boxes that overlap by more
-    than the Jaccard threshold allows the rectangles themselves to (a little margin for float32).
+    A candidate matches as mAP-G judges a detection's top-1 grasp: its regressed rectangle against the
+    grasps of the object the RoI is matched to (:func:`rectangles_matching`).
 
     Parameters
     ----------
@@ -962,7 +956,33 @@ def matching_candidates(outputs: GraspOutputs, owner_grasps: torch.Tensor, owner
     (R, K) bool
     """
     with torch.no_grad():
-        rectangles = decode(outputs.regression.float(), outputs.anchors.float())[:, :, None]
+        rectangles = decode(outputs.regression.float(), outputs.anchors.float())
+    return rectangles_matching(rectangles, owner_grasps, owner_valid)
+
+
+def rectangles_matching(rectangles: torch.Tensor, owner_grasps: torch.Tensor, owner_valid: torch.Tensor,
+                        ) -> torch.Tensor:
+    """Which rectangles of each RoI match a ground-truth grasp of its object, as mAP-G judges a grasp.
+
+    The rule is ``togcrf.metrics.paired_grasp_match``'s (Jaccard > 0.25, angle within 30 degrees). Only
+    the pairs that could match go to its exact polygon test: close in angle, and with bounding boxes that
+    overlap by more than the Jaccard threshold allows the rectangles themselves to (a little margin for
+    float32).
+
+    Parameters
+    ----------
+    rectangles : (R, M, 5) float
+        ``x, y, h, w, theta`` per RoI.
+    owner_grasps : (R, G, 5) float
+        The ground-truth grasps of each RoI's object, padded.
+    owner_valid : (R, G) bool
+
+    Returns
+    -------
+    (R, M) bool
+    """
+    with torch.no_grad():
+        rectangles = rectangles.float()[:, :, None]
         grasps = owner_grasps.float()[:, None]
         difference = (rectangles[..., 4] - grasps[..., 4]).abs() % math.pi
         angle_close = torch.minimum(difference, math.pi - difference) < GRASP_ANGLE_TOLERANCE + 1e-3

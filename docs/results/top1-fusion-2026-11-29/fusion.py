@@ -32,11 +32,10 @@ import torch
 from osgd.contract.samples import iter_samples, sample_shards
 from togcrf.anchors import ANCHOR_ANGLES
 from togcrf.checkpoint import load_checkpoint
-from togcrf.metrics import Detections, GroundTruth
-from togcrf.predict import predict_depth
+from togcrf.metrics import Detections
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
-from grasp_ranking import checkpoint_parser, table_rows
+from grasp_ranking import checkpoint_parser, detect, table_line, table_rows
 
 #: The variants: name -> (ring in cells, neighbouring anchor angles, floor as a share of the top-1's P(stable)).
 FUSIONS = {
@@ -82,14 +81,13 @@ def main() -> None:
     model, config = load_checkpoint(arguments.checkpoint, device="cpu")
     model.eval()
     samples = iter_samples(arguments.data, split="test", shards=sample_shards(arguments.data, arguments.pipeline))
-    pairs = [(predict_depth(model, sample.depth, config.get("image_size"), depth_reference=config["depth_reference"]),
-              GroundTruth.from_sample(sample)) for sample in islice(samples, arguments.samples)]
+    pairs = [detect(model, config, sample) for sample in islice(samples, arguments.samples)]
     variants = {"detector": lambda detections, truth: detections} | {
         name: (lambda detections, truth, values=values: fused(detections, *values)) for name, values in FUSIONS.items()}
     rows = table_rows(pairs, variants)
     print(f"Table II figures of {len(pairs)} test samples (percent, our protocol), {arguments.checkpoint}:")
     for name, row in rows.items():
-        print(f"  {name:38s} " + "  ".join(f"{column} {value:5.1f}" for column, value in row.items()))
+        print(table_line(name, row, 38))
     if arguments.json:
         arguments.json.write_text(json.dumps({"checkpoint": str(arguments.checkpoint), "samples": len(pairs),
                                               "fusions": FUSIONS, "table_percent": rows}, indent=1) + "\n")
