@@ -230,6 +230,13 @@ def handed_out(pairs: list[tuple[Detections, GroundTruth]], key: DetectionKey,
     return [(replace(detections, scores=new), truth) for (detections, truth), new in zip(pairs, scores, strict=True)]
 
 
+def top1_grasp(detections: Detections, detection: int) -> np.ndarray:
+    """The detection's most stable candidate (the one mAP-G judges): its rectangle ``(x, y, h, w, theta)``, (5,)
+    float64."""
+    top = int(np.argmax(detections.grasp_stability[detection]))
+    return np.asarray(detections.grasps[detection], np.float64)[top]
+
+
 def top1_matches(detections: Detections, truth: GroundTruth, may_claim: np.ndarray, detection: int) -> float:
     """1.0 if the top-1 candidate matches a grasp of an object the detection may claim; else (or with none) 0.0."""
     if len(detections.grasp_stability[detection]) == 0:

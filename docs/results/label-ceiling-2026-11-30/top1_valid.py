@@ -20,7 +20,6 @@ import sys
 from itertools import islice
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from osgd.contract.samples import iter_samples, sample_shards
@@ -37,7 +36,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=206)
     arguments = parser.parse_args()
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from grasp_ranking import claimed_objects, detect  # noqa: PLC0415
+    from grasp_ranking import claimed_objects, detect, top1_grasp  # noqa: PLC0415
 
     torch.set_num_threads(1)
     model, config = load_checkpoint(arguments.checkpoint, device="cpu")
@@ -51,8 +50,7 @@ def main() -> None:
         valid = dense[sample.sample_id]
         dense_row = {int(index): row for row, index in enumerate(valid.object_indices)}
         for detection, target in claimed_objects(detections, truth):
-            top_index = int(np.argmax(detections.grasp_stability[detection]))
-            top = np.asarray(detections.grasps[detection], np.float64)[top_index][None]
+            top = top1_grasp(detections, detection)[None]
             grasps = truth.grasp_rectangles[truth.grasp_objects == target]
             valid_grasps = valid.grasp_rectangles[valid.grasp_objects == dense_row[int(sample.object_indices[target])]]
             claimed += 1

@@ -33,7 +33,7 @@ GROUPS = ("match", "near", "far")
 
 def tally(detections, truth, counts: dict[str, Counter]) -> None:
     """Add one sample's objects and its claimed objects' top-1 groups to ``counts`` (per category)."""
-    from grasp_ranking import claimed_objects  # noqa: PLC0415 (benchmarks/, put on the path by main)
+    from grasp_ranking import claimed_objects, top1_grasp  # noqa: PLC0415 (benchmarks/, put on the path by main)
     from misses import group_of  # noqa: PLC0415 (docs/results/top1-misses-2026-11-29/, the same)
 
     for index, category in enumerate(truth.categories):
@@ -42,9 +42,7 @@ def tally(detections, truth, counts: dict[str, Counter]) -> None:
         counts[name]["without a grasp"] += int(not np.any(truth.grasp_objects == index))
     for detection, target in claimed_objects(detections, truth):
         grasps = truth.grasp_rectangles[truth.grasp_objects == target]
-        top_index = int(np.argmax(detections.grasp_stability[detection]))
-        top = np.asarray(detections.grasps[detection], np.float64)[top_index]
-        counts[CATEGORIES[int(truth.categories[target])]][group_of(top, grasps)] += 1
+        counts[CATEGORIES[int(truth.categories[target])]][group_of(top1_grasp(detections, detection), grasps)] += 1
 
 
 def report(counts: dict[str, Counter], evaluation: dict) -> dict:

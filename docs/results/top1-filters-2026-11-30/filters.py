@@ -60,8 +60,11 @@ class Pipeline:
     """The recipe's models, annotated grasps with their check, scenes and samples parameters, read once."""
 
     def __init__(self, data: Path, name: str) -> None:
-        manifest = json.loads((data / "manifests" / f"{name}.json").read_text())["stages"]
         store = ShardStore(data)
+        manifest = store.read_manifest(name)
+        if manifest is None:
+            raise SystemExit(f"{store.manifest_path(name)}: no manifest; build the pipeline first")
+        manifest = manifest["stages"]
 
         def keys(stage: str) -> list[str]:
             return [shard["key"] for shard in manifest[stage]["shards"]]
@@ -119,7 +122,7 @@ def tally_sample(model, config, pipeline: Pipeline, sample: Sample, counts: dict
                  misses: list[dict]) -> None:
     """Add the level of each claimed object's top-1 grasp to ``counts`` (per category and ``all``), and each
     top-1 that matches no valid grasp to ``misses`` (what :func:`draw_misses` draws)."""
-    from grasp_ranking import claimed_objects, detect  # noqa: PLC0415 (benchmarks/, put on the path by main)
+    from grasp_ranking import claimed_objects, detect, top1_grasp  # noqa: PLC0415 (benchmarks/, on the path by main)
 
     detections, truth = detect(model, config, sample)
     claimed = claimed_objects(detections, truth)
@@ -130,8 +133,7 @@ def tally_sample(model, config, pipeline: Pipeline, sample: Sample, counts: dict
         for detection, target in claimed:
             scene_index = int(sample.object_indices[target])
             rectangles, passed = object_levels(pipeline, sample, scene_index, collider)
-            top_index = int(np.argmax(detections.grasp_stability[detection]))
-            top = np.asarray(detections.grasps[detection], np.float64)[top_index][None]
+            top = top1_grasp(detections, detection)[None]
             matches = grasp_match_matrix(top, rectangles)[0] if len(rectangles) else np.zeros(0, bool)
             level = 1 + int(passed[matches].max()) if matches.any() else 0
             for name in ("all", CATEGORIES[int(truth.categories[target])]):
