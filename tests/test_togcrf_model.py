@@ -32,6 +32,7 @@ from togcrf.model import (
     pyramid,
     rescored,
     top_grasp_right,
+    widened_boxes,
 )
 
 #: A small configuration that keeps CPU tests quick.
@@ -446,6 +447,42 @@ def test_the_fine_map_reaches_the_grasp_head_only(batch):
         build_model("tog", "resnet18", grasp_fine_map=True, **SMALL)
     with pytest.raises(ValueError, match="roi"):
         build_model("fcgn-task", "resnet18", grasp_fine_map=True, fpn_min_stride=8, **SMALL)
+
+
+def test_context_cells_show_the_grasp_head_what_lies_around_its_roi(batch):
+    images, targets, _ = batch
+    # one cell more on each side: 9 cells of the RoI's own cell size over the box widened about its centre
+    torch.testing.assert_close(widened_boxes(torch.tensor([[10.0, 20.0, 38.0, 34.0]]), 9 / 7),
+                               torch.tensor([[6.0, 18.0, 42.0, 36.0]]))
+    torch.manual_seed(0)
+    model = build_model("tog", "resnet18", grasp_context_cells=1, **SMALL)
+    model.train()
+    assert all(math.isfinite(float(value.detach())) for value in model(images, targets).values())
+    plain = build_model("tog", "resnet18", **SMALL)
+    plain.load_state_dict(model.state_dict())  # the context adds no weights
+    model.eval()
+    plain.eval()
+    image_sizes = [tuple(image.shape[-2:]) for image in images]
+    rois = [torch.tensor([[16.0, 16.0, 72.0, 72.0]]), torch.tensor([[30.0, 20.0, 60.0, 80.0]])]
+    with torch.no_grad():
+        features = model.backbone(torch.stack(images))
+        # FPN level "0" (stride 4) pixel (row 10, column 20) is sampled by the box widened to 8-80 px
+        # (columns 2-20), not by the box itself (16-72 px: columns 4-18)
+        edited = {name: feature.clone() for name, feature in features.items()}
+        edited["0"][0, :, 10, 20] += 5.0
+        for detector, sees_context in ((model, True), (plain, False)):
+            outputs = detector.grasp_outputs(features, rois, image_sizes)
+            # the candidates stay the RoI's 7 x 7 x 4, on the RoI's own anchors
+            assert outputs.stability.shape == (2, CANDIDATES_PER_ROI, 2)
+            anchors = roi_anchors(torch.cat(rois), detector.options.grasp_anchor_size)
+            torch.testing.assert_close(outputs.anchors, anchors)
+            changed = detector.grasp_outputs(edited, rois, image_sizes)
+            assert torch.equal(changed.stability[0], outputs.stability[0]) != sees_context
+            assert torch.equal(changed.stability[1], outputs.stability[1])  # the second image is not edited
+    with pytest.raises(ValueError, match="0 or more"):
+        build_model("tog", "resnet18", grasp_context_cells=-1, **SMALL)
+    with pytest.raises(ValueError, match="roi"):
+        build_model("fcgn-task", "resnet18", grasp_context_cells=1, **SMALL)
 
 
 def test_a_finer_grasp_grid_gives_each_roi_more_candidates(batch):

@@ -13,7 +13,9 @@
 # Seed 1 (2026-11-30 04:11:33-05:23:42 UTC, from /tmp/s/crfs1.sh, the same steps; robot-table run afterwards): the
 # diagnostics of docs/results/top1-filters-2026-11-30/ ran beside its first 8 minutes (three runs of about 30 s and
 # short tests of the script); its epochs 1, 2 and 4 ran at 11.2, 10.6 and 15.0 images/s instead of 18.4-19.6, about
-# 160 s of its 3,600 (4.5 %). The dates are in seedN/dates.log.
+# 160 s of its 3,600 (4.5 %); its results are in seed1-perturbed/ and robot-seed1-perturbed/. Seed 1 was run again
+# alone (2026-11-30 08:23:15-09:35:58 UTC, this script itself, after the session had renamed the first run's
+# folders under runs/ with the suffix -perturbed): seed1/ and robot-seed1/. The dates are in seedN/dates.log.
 #
 #     docs/results/crfs-rois8-60min-2026-11-30/run.sh          # seed 0
 #     SEED=1 docs/results/crfs-rois8-60min-2026-11-30/run.sh   # seed 1
