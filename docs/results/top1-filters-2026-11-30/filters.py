@@ -2,15 +2,16 @@
 
 Usage::
 
-    python docs/results/top1-filters-2026-11-30/filters.py CHECKPOINT OUT.json [--samples N]
+    python docs/results/top1-filters-2026-11-30/filters.py CHECKPOINT OUT.json [--samples N] [--pipeline NAME]
 
 For each detection that claims an object with ground-truth grasps on the first N (206) test samples of the
-``recipe`` pipeline (the rule of ``benchmarks/grasp_ranking.py``, ``claimed_objects``), its top-1 grasp is matched
-(the mAP-G rule, ``togcrf.metrics.grasp_match_matrix``) against the object's annotated grasps projected into the
-sample's camera, filter by filter, as the samples stage applies them (``osgd.samples.stage._object_grasps``, with
-the recipe's parameters from its manifest): every annotated grasp (grasps stage); the stable ones (checks stage);
-those whose closing line is at least 45 degrees from the optical axis and whose centre is in the image; those
-whose contacts are visible; those whose hand touches no other object (the valid grasps, before the suppression).
+``recipe`` pipeline, or the one ``--pipeline`` names (the rule of ``benchmarks/grasp_ranking.py``,
+``claimed_objects``), its top-1 grasp is matched (the mAP-G rule, ``togcrf.metrics.grasp_match_matrix``) against
+the object's annotated grasps projected into the sample's camera, filter by filter, as the samples stage applies
+them (``osgd.samples.stage._object_grasps``, with the pipeline's parameters from its manifest): every annotated
+grasp (grasps stage); the stable ones (checks stage); those whose closing line is at least 45 degrees from the
+optical axis and whose centre is in the image; those whose contacts are visible; those whose hand touches no other
+object (the valid grasps, before the suppression).
 Each top-1 is counted at the last filter it still matches a grasp after: ``valid``, ``hand collides``,
 ``contacts hidden``, ``closing line near the optical axis or centre outside``, ``unstable in the check``, or
 ``no annotated grasp``. The camera view is rebuilt from the sample (its clean depth, mask, intrinsics and pose),
@@ -57,7 +58,7 @@ LEVELS = ("no annotated grasp", "unstable in the check", "closing line near the 
 
 
 class Pipeline:
-    """The recipe's models, annotated grasps with their check, scenes and samples parameters, read once."""
+    """A pipeline's models, annotated grasps with their check, scenes and samples parameters, read once."""
 
     def __init__(self, data: Path, name: str) -> None:
         store = ShardStore(data)
@@ -223,21 +224,23 @@ def main() -> None:
     parser.add_argument("json", type=Path)
     parser.add_argument("--samples", type=int, default=206)
     parser.add_argument("--data", type=Path, default=Path("data"))
+    parser.add_argument("--pipeline", default="recipe", help="the pipeline whose test samples and grasps are read")
     parser.add_argument("--picture", type=Path, help="also draw a grid of misses (draw_misses) into this PNG")
     arguments = parser.parse_args()
     sys.path.insert(0, str(ROOT / "benchmarks"))
     torch.set_num_threads(1)
     model, config = load_checkpoint(arguments.checkpoint, device="cpu")
     model.eval()
-    pipeline = Pipeline(arguments.data, "recipe")
+    pipeline = Pipeline(arguments.data, arguments.pipeline)
     counts: dict[str, Counter] = {}
     misses: list[dict] = []
-    for sample in islice(iter_samples(arguments.data, split="test", shards=sample_shards(arguments.data, "recipe")),
-                         arguments.samples):
+    shards = sample_shards(arguments.data, arguments.pipeline)
+    for sample in islice(iter_samples(arguments.data, split="test", shards=shards), arguments.samples):
         for name in ("all", *CATEGORIES):
             counts.setdefault(name, Counter())
         tally_sample(model, config, pipeline, sample, counts, misses)
-    report = {"checkpoint": str(arguments.checkpoint), "samples": arguments.samples, "levels": list(LEVELS)}
+    report = {"checkpoint": str(arguments.checkpoint), "pipeline": arguments.pipeline, "samples": arguments.samples,
+              "levels": list(LEVELS)}
     for name, count in counts.items():
         claimed = sum(count[level] for level in LEVELS)
         if claimed:

@@ -1,0 +1,76 @@
+"""How twice the sampled grasps per tool change the test ground truth (a diagnostic, issue #15).
+
+Usage::
+
+    python docs/results/pairs96-2026-11-30/ground_truth.py OUT.json [--data data] [--split test]
+
+``recipe`` and ``recipe-pairs96`` share their piles and depth images; only the grasps stage's
+``sampler_max_pairs`` differs (48 and 96). For the samples of one split, read side by side, this counts the
+annotated objects, those with at least one ground-truth grasp, the grasps per such object, and, object by object,
+the share of one pipeline's ground-truth grasps that match one of the other's (the mAP-G rule,
+``togcrf.metrics.grasp_match_matrix``): how much of the old ground truth the new one keeps, and how much it adds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from osgd.contract.samples import iter_samples
+from togcrf.metrics import grasp_match_matrix
+
+PIPELINES = ("recipe", "recipe-pairs96")
+
+
+def object_grasps(sample) -> dict[int, np.ndarray]:
+    """The ground-truth rectangles of each annotated object of a sample, by its index in the scene."""
+    return {int(index): sample.grasp_rectangles[sample.grasp_objects == row]
+            for row, index in enumerate(sample.object_indices)}
+
+
+def compare(data: Path, split: str) -> dict:
+    """The counts of the module's docstring over every sample of ``split``."""
+    objects = dict.fromkeys(PIPELINES, 0)
+    with_grasps = dict.fromkeys(PIPELINES, 0)
+    grasps = dict.fromkeys(PIPELINES, 0)
+    matched = {"recipe grasps matching a recipe-pairs96 grasp": [0, 0],
+               "recipe-pairs96 grasps matching a recipe grasp": [0, 0]}
+    samples = zip(*(iter_samples(data, pipeline, split=split) for pipeline in PIPELINES), strict=True)
+    for old, new in samples:
+        if old.sample_id != new.sample_id:
+            raise SystemExit(f"the pipelines' samples differ: {old.sample_id} against {new.sample_id}")
+        by_pipeline = dict(zip(PIPELINES, (object_grasps(old), object_grasps(new)), strict=True))
+        for pipeline, per_object in by_pipeline.items():
+            objects[pipeline] += len(per_object)
+            with_grasps[pipeline] += sum(len(rectangles) > 0 for rectangles in per_object.values())
+            grasps[pipeline] += sum(len(rectangles) for rectangles in per_object.values())
+        for index, old_rectangles in by_pipeline["recipe"].items():
+            new_rectangles = by_pipeline["recipe-pairs96"][index]
+            match = grasp_match_matrix(old_rectangles, new_rectangles)
+            matched["recipe grasps matching a recipe-pairs96 grasp"][0] += int(match.any(axis=1).sum())
+            matched["recipe grasps matching a recipe-pairs96 grasp"][1] += len(old_rectangles)
+            matched["recipe-pairs96 grasps matching a recipe grasp"][0] += int(match.any(axis=0).sum())
+            matched["recipe-pairs96 grasps matching a recipe grasp"][1] += len(new_rectangles)
+    return {"split": split,
+            **{pipeline: {"objects": objects[pipeline], "objects with grasps": with_grasps[pipeline],
+                          "grasps per object with grasps": round(grasps[pipeline] / max(with_grasps[pipeline], 1), 2)}
+               for pipeline in PIPELINES},
+            **{name: round(100.0 * hits / max(total, 1), 1) for name, (hits, total) in matched.items()}}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("json", type=Path)
+    parser.add_argument("--data", type=Path, default=Path("data"))
+    parser.add_argument("--split", default="test")
+    arguments = parser.parse_args()
+    report = compare(arguments.data, arguments.split)
+    arguments.json.write_text(json.dumps(report, indent=1) + "\n")
+    print(json.dumps(report, indent=1))
+
+
+if __name__ == "__main__":
+    main()
