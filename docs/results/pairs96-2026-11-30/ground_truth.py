@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -33,32 +34,32 @@ def object_grasps(sample) -> dict[int, np.ndarray]:
 
 def compare(data: Path, split: str) -> dict:
     """The counts of the module's docstring over every sample of ``split``."""
-    objects = dict.fromkeys(PIPELINES, 0)
-    with_grasps = dict.fromkeys(PIPELINES, 0)
-    grasps = dict.fromkeys(PIPELINES, 0)
-    matched = {"recipe grasps matching a recipe-pairs96 grasp": [0, 0],
-               "recipe-pairs96 grasps matching a recipe grasp": [0, 0]}
+    counts: Counter = Counter()
     samples = zip(*(iter_samples(data, pipeline, split=split) for pipeline in PIPELINES), strict=True)
     for old, new in samples:
         if old.sample_id != new.sample_id:
             raise SystemExit(f"the pipelines' samples differ: {old.sample_id} against {new.sample_id}")
-        by_pipeline = dict(zip(PIPELINES, (object_grasps(old), object_grasps(new)), strict=True))
-        for pipeline, per_object in by_pipeline.items():
-            objects[pipeline] += len(per_object)
-            with_grasps[pipeline] += sum(len(rectangles) > 0 for rectangles in per_object.values())
-            grasps[pipeline] += sum(len(rectangles) for rectangles in per_object.values())
-        for index, old_rectangles in by_pipeline["recipe"].items():
-            new_rectangles = by_pipeline["recipe-pairs96"][index]
-            match = grasp_match_matrix(old_rectangles, new_rectangles)
-            matched["recipe grasps matching a recipe-pairs96 grasp"][0] += int(match.any(axis=1).sum())
-            matched["recipe grasps matching a recipe-pairs96 grasp"][1] += len(old_rectangles)
-            matched["recipe-pairs96 grasps matching a recipe grasp"][0] += int(match.any(axis=0).sum())
-            matched["recipe-pairs96 grasps matching a recipe grasp"][1] += len(new_rectangles)
-    return {"split": split,
-            **{pipeline: {"objects": objects[pipeline], "objects with grasps": with_grasps[pipeline],
-                          "grasps per object with grasps": round(grasps[pipeline] / max(with_grasps[pipeline], 1), 2)}
-               for pipeline in PIPELINES},
-            **{name: round(100.0 * hits / max(total, 1), 1) for name, (hits, total) in matched.items()}}
+        old_grasps, new_grasps = object_grasps(old), object_grasps(new)
+        for pipeline, per_object in zip(PIPELINES, (old_grasps, new_grasps), strict=True):
+            counts[pipeline, "objects"] += len(per_object)
+            counts[pipeline, "with grasps"] += sum(len(rectangles) > 0 for rectangles in per_object.values())
+            counts[pipeline, "grasps"] += sum(len(rectangles) for rectangles in per_object.values())
+        for index, old_rectangles in old_grasps.items():
+            match = grasp_match_matrix(old_rectangles, new_grasps[index])
+            counts["recipe", "matched"] += int(match.any(axis=1).sum())
+            counts["recipe-pairs96", "matched"] += int(match.any(axis=0).sum())
+
+    def share(pipeline: str) -> float:
+        return round(100.0 * counts[pipeline, "matched"] / max(counts[pipeline, "grasps"], 1), 1)
+
+    def totals(pipeline: str) -> dict:
+        with_grasps = counts[pipeline, "with grasps"]
+        return {"objects": counts[pipeline, "objects"], "objects with grasps": with_grasps,
+                "grasps per object with grasps": round(counts[pipeline, "grasps"] / max(with_grasps, 1), 2)}
+
+    return {"split": split, **{pipeline: totals(pipeline) for pipeline in PIPELINES},
+            "recipe grasps matching a recipe-pairs96 grasp": share("recipe"),
+            "recipe-pairs96 grasps matching a recipe grasp": share("recipe-pairs96")}
 
 
 def main() -> None:
