@@ -16,7 +16,8 @@ options, evaluates each on the test split, and writes:
 Scales: ``--scale paper`` is the paper's setting (ResNet-101, 10 epochs,
 native image size, every sample); ``--scale cpu`` is the CPU recipe
 (:data:`CPU_SCALE`: one hour of training per model on 2 cores, on the data
-of ``pipelines/recipe.toml``; docs/togcrf-evaluation.md); ``--scale small``
+of ``pipelines/recipe-pairs96.toml``, ``pipelines/recipe.toml`` before
+2026-11-30; docs/togcrf-evaluation.md); ``--scale small``
 only shows the pipeline running end to end (ResNet-18, 8 epochs, 64
 training and 32 test samples, about five minutes per model); ``auto`` (the
 default) takes ``paper`` where CUDA is available and ``cpu`` otherwise;
@@ -138,7 +139,8 @@ CPU_MODEL_OPTIONS = (
 
 #: The CPU recipe: one hour of training per model on 2 cores, ResNet-18 (up to C4) from scratch at 160 px,
 #: AdamW with a cosine schedule, on every training sample of the data dir (the recipe's data is
-#: pipelines/recipe.toml), a 64-sample validation slice for the learning curves. Until 2026-11-27 it ran
+#: pipelines/recipe-pairs96.toml since 2026-11-30: the piles of pipelines/recipe.toml with 96 sampled contact pairs
+#: per tool instead of 48), a 64-sample validation slice for the learning curves. Until 2026-11-27 it ran
 #: the whole ResNet-18 at 192 px (benchmarks/bench_train.py ``recipe-192-c5``). Since 2026-11-28 its forward
 #: pass runs under bfloat16 autocast on a CPU with native bfloat16 (``cpu_bf16``; float32 on any other CPU).
 CPU_SCALE = Scale("resnet18", 50, 160, None, None, 4, warmup_steps=200, lr=0.001, optimizer="adamw",
