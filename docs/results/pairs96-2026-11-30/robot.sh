@@ -8,6 +8,14 @@
 #     SEED=0 TRAIN=recipe docs/results/pairs96-2026-11-30/robot.sh    # trained on recipe
 #     .venv/bin/togcrf robot-table runs/robot-recipe-48epochs-seed{0,1}/trials.parquet \
 #         runs/robot-recipe-pairs96-48epochs-seed{0,1}/trials.parquet --out runs/robot-pairs96-ab
+#
+# Three times the paper's trials (30 per tool task, 90 for "no task" and for "hand over"; the first 10 and 30 are the
+# trials above), the four checkpoints in one run (2026-11-30 14:50:28-14:55:25 UTC, alone on the machine):
+#
+#     OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/togcrf robot-eval \
+#         runs/recipe-48epochs-seed{0,1}/tog/checkpoint.pt runs/recipe-pairs96-48epochs-seed{0,1}/tog/checkpoint.pt \
+#         --config pipelines/recipe.toml --data data --workers 2 --no-pictures --baselines '' \
+#         --tool-trials 30 --named-trials 90 --out runs/robot-pairs96-ab-x3
 cd "$(dirname "$0")/../../.."
 SEED=${SEED:-0}
 TRAIN=${TRAIN:-recipe-pairs96}
