@@ -3,7 +3,7 @@
 # --models tog --cpu-bf16`) with extra `togcrf train` arguments (a model option under test, or none for a same-day
 # baseline), then benchmarks/score_run.sh (both protocols of togcrf eval, grasp_ranking.py) on the 206 test samples;
 # with VIEWS=N also `togcrf eval --views N`, with TOP1_CELLS=1 also
-# docs/results/regression-radius-2026-11-29/top1_cells.py. The run goes to OUT/tog, its output to OUT/train.out and
+# lab/results/regression-radius-2026-11-29/top1_cells.py. The run goes to OUT/tog, its output to OUT/train.out and
 # OUT/score.out, the dates of its steps to OUT/dates.log. SEED (default 0) picks the seed. MINUTES (default 60) is
 # the time budget; MINUTES=0 trains without one, for the --epochs given (the cosine then follows the steps, so the run
 # sees the same images on any machine). THREADS (default 2) sets torch's threads: 1 for two runs side by side.
@@ -15,7 +15,7 @@ OUT=${1:?usage: benchmarks/recipe_run.sh OUT [TRAIN ARGUMENTS...]}
 shift
 cd "$(dirname "$0")/.."
 mkdir -p "$OUT"
-source docs/results/confidence-head-2026-11-28/recipe-options.sh
+source lab/results/confidence-head-2026-11-28/recipe-options.sh
 export OMP_NUM_THREADS=${THREADS:-2} MKL_NUM_THREADS=${THREADS:-2}
 log "train start"
 .venv/bin/togcrf train $COMMON $OPTS "$@" --lr 1e-3 --warmup-steps 200 --time-budget "${MINUTES:-60}" --out "$OUT/tog" \
@@ -29,7 +29,7 @@ if [ -n "${VIEWS:-}" ]; then
   log "evaluated"
 fi
 if [ -n "${TOP1_CELLS:-}" ]; then
-  .venv/bin/python docs/results/regression-radius-2026-11-29/top1_cells.py "$OUT/tog/checkpoint.pt" \
+  .venv/bin/python lab/results/regression-radius-2026-11-29/top1_cells.py "$OUT/tog/checkpoint.pt" \
     > "$OUT/top1-cells.txt" 2>&1
   log "top1 cells"
 fi

@@ -30,7 +30,7 @@ bar held off its centre turns, against the closed-form answers.
 Usage::
 
     python benchmarks/validate_checks.py [--workers 2] [--data-dir DIR] [--pad-contact soft|rigid]
-        [--json docs/results/checks-validation/soft.json]
+        [--json lab/results/checks-validation/soft.json]
     python benchmarks/validate_checks.py --physics
 """
 

@@ -1,4 +1,4 @@
-# Sourced by the scripts that run on a lent GPU machine (docs/results/*/run*.sh), from the repository root:
+# Sourced by the scripts that run on a lent GPU machine (lab/results/*/run*.sh), from the repository root:
 # unpacks the offline kit (pipelines/gpu-offline-kit.sh; $1, default .gpu/site-py312.tar.xz) where the dataset
 # stages' dependencies are missing, and puts the checkout on PYTHONPATH.
 kit=${1:-.gpu/site-py312.tar.xz}

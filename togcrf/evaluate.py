@@ -334,7 +334,7 @@ def run_seed(path: Path) -> int | None:
     """The training seed of an evaluation: ``seed`` of the run's config beside it (None if there is none).
 
     The config is ``config.json`` in the run dir, or, for an evaluation committed as ``MODEL-eval.json``
-    or ``MODEL-eval-lab.json`` (the files under docs/results/), ``MODEL-config.json`` beside it.
+    or ``MODEL-eval-lab.json`` (the files under lab/results/), ``MODEL-config.json`` beside it.
 
     Parameters
     ----------
