@@ -67,20 +67,21 @@ golden-update: install
 		mkdir -p data/golden/$$table && cp .golden-build/$$table/*.parquet data/golden/$$table/; done
 	rm -rf .golden-build
 
+# Every benchmarks/bench_*.py with its defaults (benchmarks/ holds these and their helper time_stage_items.py).
 bench: install
 	@for script in benchmarks/bench_*.py; do echo "== $$script"; $(BIN)/python $$script || exit 1; done
 
-# Table II: on a CPU the recipe's data (the pipeline RECIPE names: recipe-pairs96 since 2026-11-30, recipe before)
-# and one hour of training per model (five hours); on a GPU the paper's scale.
+# Table II: on a CPU the recipe's data (the pipeline RECIPE names) and one hour of training per model (five hours);
+# on a GPU the paper's scale.
 RECIPE := recipe-pairs96
 table: install
 	$(BIN)/osgd --data-dir $(DATA_DIR) $(if $(WORKERS),--workers $(WORKERS)) run pipelines/$(RECIPE).toml
 	$(BIN)/togcrf reproduce --data $(DATA_DIR) --pipeline $(RECIPE) --out runs/table2
 
-# Table II on a GPU machine (issue #21): pipelines/table-gpu.sh installs, builds pipelines/gpu.toml, measures,
+# Table II on a GPU machine: gpu/table-gpu.sh installs, builds pipelines/gpu.toml, measures,
 # trains and evaluates, each call within DEADLINE seconds; call it again until it prints "table-gpu: done".
 table-gpu:
-	pipelines/table-gpu.sh
+	gpu/table-gpu.sh
 
 clean-data:
 	rm -rf $(DATA_DIR)/models $(DATA_DIR)/grasps $(DATA_DIR)/checks $(DATA_DIR)/scenes $(DATA_DIR)/samples $(DATA_DIR)/cache

@@ -2,7 +2,7 @@
 
 1. Trials per second on one core: the fixture tools (tests/helpers.py) with
    grasps across their handles and bodies, run serially in this process,
-   first with the rigid pads of the check before issue #17 (the baseline),
+   first with the rigid pads (``pad_contact = "rigid"``, the baseline),
    then with the soft pads (both criteria come from one trial), then with
    the soft pads and the approach swept against the mesh
    (``approach_geometry = "mesh"``, as ``pipelines/osgd.toml``), and the
@@ -112,7 +112,7 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, default=Path(tempfile.gettempdir()) / "osgd-bench-checks")
     parser.add_argument("--quick", action="store_true", help="fixture trials only")
     arguments = parser.parse_args()
-    baseline = bench_fixture_trials(arguments.trials, ChecksStageParams(pad_contact="rigid"), "rigid pads (before #17)")
+    baseline = bench_fixture_trials(arguments.trials, ChecksStageParams(pad_contact="rigid"), "rigid pads")
     soft = bench_fixture_trials(arguments.trials, ChecksStageParams(), "soft pads, lift and shake")
     mesh = bench_fixture_trials(arguments.trials, ChecksStageParams(approach_geometry="mesh"),
                                 "soft pads, approach against the mesh")

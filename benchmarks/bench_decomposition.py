@@ -1,12 +1,12 @@
-"""Collision shapes of scanned tools: today's preset against the ``scan`` preset, in one run (issue #16, item 4).
+"""Collision shapes of scanned tools: today's preset against the ``scan`` preset, in one run.
 
 A procedural tool of each category stands in for a real one whose true
 solid is known; a *scan* of it is the tool turned, remeshed to edges of at
 most 2 mm and noised by 0.2 mm per axis (``bench_parts.scanned``), and a
 *scan with holes* also loses 2 % of its faces at random (a sensor's blind
 spots). Each mesh is decomposed by the preset ``auto`` gives a procedural
-or authors' model of its category (``fast``, or ``thin`` for forks: what a
-user's mesh got before the ``scan`` preset) and by the ``scan`` preset, and
+or authors' model of its category (``fast``, or ``thin`` for forks) and by
+the ``scan`` preset, and
 the compound is compared with the true solid on 100,000 points drawn in its
 box:
 

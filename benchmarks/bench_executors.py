@@ -29,7 +29,7 @@ Usage::
 
     python benchmarks/bench_executors.py                       # golden pipeline, 40 scenes, workers 1 and 2
     python benchmarks/bench_executors.py --workers 1 2 4 --set scenes.count=80
-    python benchmarks/bench_executors.py --json lab/results/scale-out/bench.json
+    python benchmarks/bench_executors.py --json bench.json
 """
 
 from __future__ import annotations

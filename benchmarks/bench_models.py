@@ -7,7 +7,7 @@ through the stage framework with a process pool of 2, in a fresh data dir:
 2. rebuild: every shard rebuilt (``force``), decompositions from the cache;
 3. warm: every shard already done (what a resumed run sees).
 
-Target on the 2-core machine (issue #3): cold under 5 minutes for all 175,
+Target on a 2-core machine: cold under 5 minutes for all 175,
 warm under 10 s.
 
 Usage::

@@ -1,9 +1,9 @@
-"""The samples' PNG encodings: time and size per sample, the settings before issue #22's last round against today's.
+"""The samples' PNG encodings: time and size per sample, one setting for every image against today's.
 
 Reads the first ``--samples`` samples of a built pipeline (its manifest in
 the data dir), decodes their noisy depth, clean depth and mask, and encodes
-each image kind with zlib level 3 and libpng's adaptive row filters (the one
-setting every image had before) and with today's setting per kind
+each image kind with zlib level 3 and libpng's adaptive row filters (one
+setting for every image) and with today's setting per kind
 (:mod:`osgd.contract.encoding`), in this process, in turn, ``--repeats`` times;
 prints the best time per sample and the mean size of each, and checks that
 both decode to the same arrays.

@@ -9,9 +9,9 @@ With ``--osgd-models DIR`` (the paper authors' models, e.g.
 ../shared/osgd-models) it also builds a small pipeline of those models
 (``--per-category`` models of each category, ``--scenes`` piles; kept in
 ``--data-dir`` for the next run) and times the samples stage on its piles,
-each in a fresh process of one core, in the same run: the stage as it was
-before issue #22 (commit ``--before``, unpacked from git, with EGL, the
-renderer ``auto`` picked here then) against today's with EGL and with the
+each in a fresh process of one core, in the same run: the stage of an
+older commit (``--before``, unpacked from git, with EGL, the renderer
+``auto`` picked at that commit) against today's with EGL and with the
 embree renderer, each after a warm-up item (a worker builds many items);
 then where today's path spends its time.
 
@@ -144,8 +144,8 @@ def osgd_pipeline(models_dir: Path, data_dir: Path, per_category: int, scenes: i
     return overrides
 
 
-#: The commit before issue #22's changes to the samples stage: the "before" of the comparison.
-BEFORE_ISSUE_22 = "ed5ac77"
+#: The default "before" of the comparison (``--before``): a commit whose samples stage runs on the same data dir.
+BEFORE = "ed5ac77"
 
 
 def time_items(source: Path, data_dir: Path, overrides: list[str], items: int,
@@ -198,7 +198,7 @@ def bench_osgd(models_dir: Path, data_dir: Path, per_category: int, scenes: int,
     with tempfile.TemporaryDirectory() as folder:
         old = checkout(before, Path(folder))
         baseline = time_items(old, data_dir, [*overrides, "samples.renderer=egl"], items)
-        print(f"  {before} (before issue #22), egl: {baseline * 1000:6.0f} ms/sample ({1 / baseline:5.2f} samples/s)")
+        print(f"  {before} (before), egl: {baseline * 1000:6.0f} ms/sample ({1 / baseline:5.2f} samples/s)")
         for renderer in ("egl", "embree"):
             seconds = time_items(ROOT, data_dir, [*overrides, f"samples.renderer={renderer}"], items)
             print(f"  today, {renderer:6s}: {seconds * 1000:6.0f} ms/sample ({1 / seconds:5.2f} samples/s), "
@@ -212,7 +212,7 @@ def bench_built(data_dir: Path, items: int, before: str) -> None:
     All 75 of the authors' models and thousands of piles show what a small
     pipeline does not: the per-item reading of every models, grasps and
     checks shard, an embree cache smaller than the models, and a collision
-    world that fills with bodies pile after pile (issue #22).
+    world that fills with bodies pile after pile.
     """
     print(f"samples stage on {items} items of the build of pipelines/osgd.toml in {data_dir}, one process each:")
     with tempfile.TemporaryDirectory() as folder:
@@ -240,7 +240,7 @@ def main() -> None:
     parser.add_argument("--per-category", type=int, default=2, help="authors' models per category")
     parser.add_argument("--scenes", type=int, default=75, help="piles of the authors' models (25 per item)")
     parser.add_argument("--workers", type=int, default=2, help="workers that build the authors' pipeline")
-    parser.add_argument("--before", default=BEFORE_ISSUE_22, help="the commit to compare today's samples stage with")
+    parser.add_argument("--before", default=BEFORE, help="the commit to compare today's samples stage with")
     parser.add_argument("--built", type=Path, default=None,
                         help="a data dir where `osgd run pipelines/osgd.toml` built the stages before samples: "
                              "time --items of its samples items with --before and today (skips the rest)")

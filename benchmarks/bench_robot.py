@@ -1,4 +1,4 @@
-"""Cost of one robot trial (issue #18): pile, render, inference on the CPU, execution, on one core.
+"""Cost of one robot trial: pile, render, inference on the CPU, execution, on one core.
 
 Runs ``togcrf robot-eval`` on a reduced protocol (one trial per tool task and
 two per named task: 14 trials) with one worker process and no pictures, in a
@@ -6,11 +6,13 @@ child process, and prints the seconds per trial and the child's peak
 resident memory. The goal is under 3 s per trial on one core, so that the
 full protocol (160 trials) of a ResNet-18 model fits 10 minutes on 2 cores.
 
-It needs a trained checkpoint and the data of its pipeline; without them it
-says so and exits 0 (so that ``make bench`` runs on a fresh clone)::
+It needs a trained checkpoint and the data of its pipeline (by default
+those of ``make table``: TOG trained on ``pipelines/recipe-pairs96.toml``);
+without them it says so and exits 0 (so that ``make bench`` runs on a fresh
+clone)::
 
-    python benchmarks/bench_robot.py --checkpoint runs/cpu-recipe-2cores/tog/checkpoint.pt \\
-        --config pipelines/recipe.toml --data data
+    python benchmarks/bench_robot.py --checkpoint runs/table2/tog/checkpoint.pt \\
+        --config pipelines/recipe-pairs96.toml --data data
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--checkpoint", type=Path, default=ROOT / "runs/cpu-recipe-2cores/tog/checkpoint.pt")
-    parser.add_argument("--config", type=Path, default=ROOT / "pipelines/recipe.toml")
+    parser.add_argument("--checkpoint", type=Path, default=ROOT / "runs/table2/tog/checkpoint.pt")
+    parser.add_argument("--config", type=Path, default=ROOT / "pipelines/recipe-pairs96.toml")
     parser.add_argument("--data", type=Path, default=ROOT / "data")
     arguments = parser.parse_args()
     manifest = arguments.data / "manifests" / f"{arguments.config.stem}.json"

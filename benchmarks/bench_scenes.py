@@ -3,20 +3,20 @@
 Runs in one process (one core): the same scenes are dropped twice, once
 stopping at rest (the stage's rule) and once for a fixed 3 s of simulated
 time after the last release (what the original generator did, REFERENCE
-section 2), and the ratio is printed. Target (issue #6): under 0.5 s per
+section 2), and the ratio is printed. Target: under 0.5 s per
 scene per core on average, so that the paper's 8,000 scenes take under 30
 minutes on 2 cores.
 
 Then the same scenes again with each convex part colliding as its reduced
-hull of ``--max-hull-vertices`` corners (``scenes.max_hull_vertices``,
-issue #22): the time ratio, the hulls' corners and shrink, and, for both
+hull of ``--max-hull-vertices`` corners (``scenes.max_hull_vertices``):
+the time ratio, the hulls' corners and shrink, and, for both
 runs side by side, the piles' statistics (contacts measured on the stored
 parts, top-down overlap and occlusion on the meshes) and the deepest
 interpenetration of the stored parts per pile.
 
 With ``--config``, the stage with that pipeline's ``[scenes]`` parameters
-against the reduced hulls dropped as before issue #22's second round
-(a new pybullet client per attempt): the time ratio, the piles'
+against the reduced hulls dropped with a new pybullet client per attempt
+(the stage before :func:`osgd.physics.worker_client`): the time ratio, the piles'
 statistics and how still the piles are (each simulated again for 1 s)
 side by side. Where the config sets ``maximal_coordinates``, the config
 with multibodies runs as a third arm, so that the option's own effect
@@ -166,7 +166,7 @@ def compare_hulls(pool: ModelPool, data_dir: Path | None, seed: int, scenes: int
 
 def compare_config(pool: ModelPool, data_dir: Path | None, seed: int, scenes: int, config: Path,
                    max_vertices: int) -> None:
-    """The config's ``[scenes]`` parameters against the reduced hulls alone dropped as before (issue #22).
+    """The config's ``[scenes]`` parameters against the reduced hulls alone dropped with a new client per attempt.
 
     Before: a new pybullet client per attempt and per stored-parts check
     (today's :func:`osgd.physics.worker_client` swapped for
@@ -340,7 +340,7 @@ def main() -> None:
                         help="corners of the reduced hulls compared with the stored parts (0: no comparison)")
     parser.add_argument("--config", type=Path, default=None,
                         help="a pipeline config whose [scenes] parameters to compare with the reduced hulls "
-                             "dropped as before issue #22's second round (e.g. pipelines/osgd.toml)")
+                             "dropped with a new pybullet client per attempt (e.g. pipelines/osgd.toml)")
     parser.add_argument("--config-only", action="store_true",
                         help="with --config: only that comparison (no baselines, no profile)")
     parser.add_argument("--built", type=Path, default=None,

@@ -4,27 +4,27 @@ Each configuration runs in its own child process, so that the peak resident
 memory (``ru_maxrss``) belongs to it alone, and all run in the same
 invocation, so the ratio compares like with like on one machine:
 
-- ``before``: the training of commit 4bf0b66 (issue #15's review): TOG at
-  192 px, batch 2, torchvision's FPN from stride 4 with 256 channels and no
-  normalisation, 256 RCNN RoIs per image, a 1024-wide box head, 256-channel
-  grasp blocks, 16 px grasp anchors and a scale jitter of +-10 % (images up
-  to 211 px, padded to 224);
-- ``recipe-192-c5``: the CPU recipe until 2026-11-27: the whole ResNet-18
-  (C3-C5 in the FPN; RPN anchors of 16-128 px over four levels) at 192 px,
-  with 12 px grasp anchors;
-- ``recipe``: ``togcrf.reproduce.CPU_SCALE`` (its model options, batch size,
-  image size, scale jitter, optimiser and precision): since 2026-11-27 the
-  ResNet stops after C4 and the images are 160 px;
-- ``recipe-16-rois``: the recipe until the evening of 2026-11-29, its
-  grasp head trained on up to 16 foreground RoIs per image (since then 8);
+- ``before``: the training of commit 4bf0b66: TOG at 192 px, batch 2,
+  torchvision's FPN from stride 4 with 256 channels and no normalisation,
+  256 RCNN RoIs per image, a 1024-wide box head, 256-channel grasp blocks,
+  16 px grasp anchors and a scale jitter of +-10 % (images up to 211 px,
+  padded to 224);
+- ``recipe-192-c5``: the recipe with the whole ResNet-18 (C3-C5 in the FPN;
+  RPN anchors of 16-128 px over four levels) at 192 px, with 12 px grasp
+  anchors and 16 grasp RoIs per image, in float32;
+- ``recipe``: ``togcrf.config.CPU`` (the ``cpu`` preset) (its model options, batch size,
+  image size, scale jitter, optimiser and precision): the ResNet stops
+  after C4 and the images are 160 px;
+- ``recipe-16-rois``: the recipe with its grasp head trained on up to 16
+  foreground RoIs per image instead of 8;
 - ``recipe-tv-roialign``: the recipe with torchvision's RoIAlign backward
   instead of :mod:`togcrf.roi_align`'s sparse one (``before`` runs
   torchvision's too, as at 4bf0b66);
-- ``recipe-float32``: the recipe without its bfloat16 autocast (since
-  2026-11-28 the recipe's forward pass runs in bfloat16 on a CPU with
-  native bfloat16, ``togcrf train --cpu-bf16``; on any other CPU the
-  recipe runs in float32 and the two are the same configuration). Each
-  child's line names the precision it ran in.
+- ``recipe-float32``: the recipe without its bfloat16 autocast (the
+  recipe's forward pass runs in bfloat16 on a CPU with native bfloat16,
+  ``togcrf train --cpu-bf16``; on any other CPU the recipe runs in float32
+  and the two are the same configuration). Each child's line names the
+  precision it ran in.
 
 ``--only`` picks some of them (the ratios are printed for those present;
 ``recipe-float32 / before`` is the speed-up a CPU without native bfloat16
@@ -35,7 +35,7 @@ instruction sets of oneDNN (the convolutions) and of ATen's own kernels
 (``INSTRUCTION_SET_CAPS``; the header then names the caps)::
 
     ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 python benchmarks/bench_train.py --data data \
-        --pipeline recipe --only before recipe-float32
+        --pipeline recipe-pairs96 --only before recipe-float32
 
 Each configuration steps its own optimiser, built as ``togcrf train`` builds
 it (``togcrf.train.build_optimizer``): SGD with momentum before the recipe,
@@ -49,8 +49,8 @@ JSON line.
 Usage::
 
     python benchmarks/bench_train.py                                   # synthetic samples
-    python benchmarks/bench_train.py --data data --pipeline recipe     # the recipe's data
-    python benchmarks/bench_train.py --data data --pipeline recipe --profile recipe   # where its step goes
+    python benchmarks/bench_train.py --data data --pipeline recipe-pairs96     # the recipe's data
+    python benchmarks/bench_train.py --data data --pipeline recipe-pairs96 --profile recipe   # where its step goes
 """
 
 from __future__ import annotations
@@ -81,30 +81,32 @@ RATIOS = (("recipe", "before"), ("recipe", "recipe-192-c5"), ("recipe", "recipe-
 BATCHES = 4
 
 #: Model options of the training before the recipe (the defaults of commit 4bf0b66).
-BEFORE_OPTIONS = {"fpn_norm": False, "grasp_trunk_norm": False, "fpn_min_stride": 4, "fpn_channels": 256,
-                  "rpn_anchor_sizes": [16, 32, 64, 128, 256], "box_batch_per_image": 256, "box_head_size": 1024,
-                  "grasp_channels": 256, "rpn_pre_nms_train": 1000, "rpn_post_nms_train": 500,
-                  "grasp_anchor_size": 16.0}
+BEFORE_OPTIONS = {"backbone.fpn_norm": False, "grasp_head.trunk_norm": False, "backbone.fpn_min_stride": 4,
+                  "backbone.fpn_channels": 256, "rpn.anchor_sizes": [16, 32, 64, 128, 256],
+                  "box_head.batch_per_image": 256, "box_head.size": 1024, "grasp_head.channels": 256,
+                  "rpn.pre_nms_train": 1000, "rpn.post_nms_train": 500, "grasp_head.anchor_size": 16.0}
 
 
 def configurations() -> dict[str, dict]:
     """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down", "optimizer", "lr",
     "torchvision_roi_align", "cpu_bf16"}."""
-    from togcrf.reproduce import CPU_SCALE  # noqa: PLC0415
+    from togcrf.config import CPU  # noqa: PLC0415
+    from togcrf.model import options_dict  # noqa: PLC0415
 
-    recipe = {"model_options": dict(CPU_SCALE.model_options), "batch_size": CPU_SCALE.batch_size,
-              "image_size": CPU_SCALE.image_size, "jitter_up": 0.0, "jitter_down": CPU_SCALE.scale_jitter,
-              "optimizer": CPU_SCALE.optimizer, "lr": CPU_SCALE.lr, "torchvision_roi_align": False,
-              "cpu_bf16": CPU_SCALE.cpu_bf16}
-    until_2026_11_27 = {**recipe, "image_size": 192, "cpu_bf16": False, "model_options": {
-        **recipe["model_options"], "fpn_max_stride": 32, "rpn_anchor_sizes": (16, 32, 64, 128),
-        "grasp_anchor_size": 12.0, "grasp_rois_per_image": 16}}
+    options = {f"{group}.{name}": value for group, values in options_dict(CPU.model_options).items()
+               for name, value in values.items()}
+    recipe = {"model_options": options, "batch_size": CPU.batch_size, "image_size": CPU.image_size,
+              "jitter_up": 0.0, "jitter_down": CPU.scale_jitter, "optimizer": CPU.optimizer, "lr": CPU.lr,
+              "torchvision_roi_align": False, "cpu_bf16": CPU.cpu_bf16}
+    whole_backbone = {**recipe, "image_size": 192, "cpu_bf16": False, "model_options": {
+        **recipe["model_options"], "backbone.fpn_max_stride": 32, "rpn.anchor_sizes": (16, 32, 64, 128),
+        "grasp_head.anchor_size": 12.0, "grasp_head.rois_per_image": 16}}
     return {
         "before": {"model_options": BEFORE_OPTIONS, "batch_size": 2, "image_size": 192, "jitter_up": 0.1,
                    "jitter_down": 0.1, "optimizer": "sgd", "lr": 0.01, "torchvision_roi_align": True,
                    "cpu_bf16": False},
-        "recipe-192-c5": until_2026_11_27,
-        "recipe-16-rois": {**recipe, "model_options": {**recipe["model_options"], "grasp_rois_per_image": 16}},
+        "recipe-192-c5": whole_backbone,
+        "recipe-16-rois": {**recipe, "model_options": {**recipe["model_options"], "grasp_head.rois_per_image": 16}},
         "recipe-tv-roialign": {**recipe, "torchvision_roi_align": True},
         "recipe-float32": {**recipe, "cpu_bf16": False},
         "recipe": recipe,
@@ -168,13 +170,15 @@ def _batches(arguments: argparse.Namespace, setting: dict, count: int) -> list:
 def child(arguments: argparse.Namespace) -> None:
     import torch  # noqa: PLC0415
 
+    from togcrf.config import TrainConfig  # noqa: PLC0415
+    from togcrf.engine import mixed_precision, precision_name  # noqa: PLC0415
     from togcrf.model import build_model  # noqa: PLC0415
-    from togcrf.train import TrainConfig, build_optimizer, mixed_precision, precision_name  # noqa: PLC0415
+    from togcrf.train import build_optimizer  # noqa: PLC0415
 
     setting = configurations()[arguments.configuration]
     batches = _batches(arguments, setting, BATCHES)
     torch.manual_seed(0)
-    model = build_model("tog", arguments.backbone, **setting["model_options"])
+    model = build_model("tog", arguments.backbone, setting["model_options"])
     if setting["torchvision_roi_align"]:
         use_torchvision_roi_align(model)
     model.train()

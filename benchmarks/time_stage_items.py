@@ -1,9 +1,10 @@
 """Time a stage's build of a pipeline's items, or its summary, in this process (a helper of the benchmarks).
 
-Imports only what every version of osgd since issue #19 has, so that
-``bench_render.py`` and ``bench_scenes.py`` can run it against an older
-checkout (``PYTHONPATH``) and against today's in the same run. Prints one
-JSON line.
+A script, not a module of osgd: ``bench_render.py`` and ``bench_scenes.py``
+run it in a fresh process against an older checkout of osgd (on
+``PYTHONPATH``) and against the working tree in the same run, so it imports
+only what older versions have too (``osgd.pipeline``, the stages, the
+store). Prints one JSON line.
 
     python benchmarks/time_stage_items.py DATA_DIR CONFIG [--stage samples] [-s KEY=VALUE ...] [--items 3]
     python benchmarks/time_stage_items.py DATA_DIR CONFIG --stage scenes --summary

@@ -56,7 +56,7 @@ def test_every_committed_pipeline_config_is_valid() -> None:
     from osgd.pipeline import load_pipeline  # noqa: PLC0415
 
     configs = sorted((ROOT / "pipelines").glob("*.toml"))
-    assert {path.stem for path in configs} >= {"default", "golden", "osgd"}
+    assert {path.stem for path in configs} >= {"default", "golden", "osgd", "gpu", "recipe-pairs96"}
     for path in configs:
         assert load_pipeline(path).pipeline.name == path.stem
 

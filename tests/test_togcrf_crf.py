@@ -15,8 +15,6 @@ from togcrf.anchors import (
     decode,
     encode,
     match,
-    near_ground_truth,
-    regression_targets_within,
     roi_anchors,
     wrap_angle,
 )
@@ -69,68 +67,6 @@ def test_matching_needs_the_cell_and_an_angle_within_22_5_degrees():
     wrapped[..., 4] = math.radians(-85.0)
     positive, _, _ = match(anchors, rois, wrapped, torch.ones(1, 1, dtype=torch.bool), torch.tensor([[7]]), 12)
     assert positive[0].nonzero().flatten().tolist() == [(2 * GRID + 4) * 4 + 0]
-
-
-def test_a_positive_radius_takes_the_3_by_3_cells_and_the_nearest_grasp():
-    rois = torch.tensor([[0.0, 0.0, 70.0, 70.0]])
-    anchors = roi_anchors(rois, anchor_size=16.0)
-    valid = torch.ones(1, 2, dtype=torch.bool)
-    # two grasps at 80 degrees, centres of cells (2, 4) and (2, 6), two cells apart, tasks 7 and 3
-    grasps = torch.tensor([[[45.0, 25.0, 20.0, 8.0, math.radians(80.0)], [65.0, 25.0, 20.0, 8.0, math.radians(80.0)]]])
-    tasks = torch.tensor([[7, 3]])
-    own, _, _ = match(anchors, rois, grasps, valid, tasks, 12)
-    wide, targets, task_targets = match(anchors, rois, grasps, valid, tasks, 12, positive_radius=1)
-    assert int(own.sum()) == 2 and bool((own <= wide).all())
-
-    def candidate(row: int, column: int) -> int:
-        return (row * GRID + column) * 4 + 3
-
-    expected = {candidate(row, column) for row in (1, 2, 3) for column in (3, 4, 5, 6)}
-    assert set(wide[0].nonzero().flatten().tolist()) == expected
-    # cell (2, 3) is nearest the first grasp, cell (2, 6) is the second's own; column 5 is equidistant: both
-    assert task_targets[0, candidate(2, 3)].argmax().item() == 7
-    assert torch.allclose(decode(targets[0, candidate(2, 3)], anchors[0, candidate(2, 3)]), grasps[0, 0], atol=1e-4)
-    assert task_targets[0, candidate(2, 6), 3].item() == 1.0
-    assert task_targets[0, candidate(2, 5), 3].item() == task_targets[0, candidate(2, 5), 7].item() == 0.5
-
-
-def test_anchors_near_a_grasp_are_within_the_radius_and_45_degrees():
-    rois = torch.tensor([[0.0, 0.0, 70.0, 70.0]])
-    anchors = roi_anchors(rois, anchor_size=16.0)
-    grasp = torch.tensor([[[35.0, 35.0, 20.0, 8.0, math.radians(30.0)]]])
-    near = near_ground_truth(anchors, rois, grasp, torch.ones(1, 1, dtype=torch.bool), radius=1.0)
-    cells = {(k // 4) for k in near[0].nonzero().flatten().tolist()}
-    angles = {ANCHOR_ANGLES[k % 4] for k in near[0].nonzero().flatten().tolist()}
-    assert cells == {row * GRID + column for row in (2, 3, 4) for column in (2, 3, 4)}
-    # 30 degrees is within 45 of -22.5? no (52.5); of 22.5 and 67.5: yes
-    assert angles == {ANCHOR_ANGLES[2], ANCHOR_ANGLES[3]}
-    assert not near_ground_truth(anchors, rois, grasp, torch.zeros(1, 1, dtype=torch.bool), radius=1.0).any()
-
-
-def test_regression_targets_within_a_radius_take_the_3_by_3_cells_and_the_nearest_grasp():
-    rois = torch.tensor([[0.0, 0.0, 70.0, 70.0]])
-    anchors = roi_anchors(rois, anchor_size=16.0)
-    valid = torch.ones(1, 2, dtype=torch.bool)
-    # two grasps at 80 degrees in cells (2, 4) and (2, 6), slightly off their cell centres
-    grasps = torch.tensor([[[47.0, 24.0, 20.0, 8.0, math.radians(80.0)], [64.0, 26.0, 20.0, 8.0, math.radians(80.0)]]])
-    positive, own_targets, _ = match(anchors, rois, grasps, valid, torch.zeros(1, 2, dtype=torch.int64), 12)
-    regressed, targets = regression_targets_within(anchors, rois, grasps, valid, radius=1.0)
-
-    def candidate(row: int, column: int) -> int:
-        return (row * GRID + column) * 4 + 3
-
-    # the anchors at 67.5 degrees of the 3 x 3 cells around each grasp, the positives among them
-    assert set(regressed[0].nonzero().flatten().tolist()) == {
-        candidate(row, column) for row in (1, 2, 3) for column in (3, 4, 5, 6)}
-    assert bool((positive <= regressed).all())
-    # a neighbour cell regresses onto its nearest grasp: (1, 3) and (2, 5) onto the first, (3, 6) onto the second
-    for (row, column), grasp in (((1, 3), 0), ((2, 5), 0), ((3, 6), 1)):
-        decoded = decode(targets[0, candidate(row, column)], anchors[0, candidate(row, column)])
-        assert torch.allclose(decoded, grasps[0, grasp], atol=1e-4), (row, column)
-    # a positive keeps the target of its own cell's grasp
-    assert torch.allclose(targets[positive], own_targets[positive], atol=1e-6)
-    assert not bool(targets[~regressed].any())
-    assert not regression_targets_within(anchors, rois, grasps, valid & False, radius=1.0)[0].any()
 
 
 def test_crf_without_pairwise_weights_returns_softmax_of_the_logits():

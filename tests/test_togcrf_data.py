@@ -157,21 +157,6 @@ def test_dataset_streams_the_split_with_targets_in_the_network_frame(synthetic_d
     assert len(SamplesDataset(synthetic_dir, pipeline="synthetic", max_samples=5)) == 5
 
 
-def test_the_targets_hold_the_instance_mask_in_the_images_frame(synthetic_dir):
-    plain = SamplesDataset(synthetic_dir, pipeline="synthetic", split="train", image_size=96, augment=True)
-    assert not {"instance_mask", "mask_values"} & set(plain[0][1])
-    dataset = SamplesDataset(synthetic_dir, pipeline="synthetic", split="train", image_size=96, augment=True,
-                             instance_masks=True)
-    for item in range(4):
-        image, targets, _ = dataset[item]
-        mask = targets["instance_mask"].numpy()
-        assert mask.shape == tuple(image.shape[1:]) and mask.dtype == np.uint8
-        assert len(targets["mask_values"]) == len(targets["boxes"])
-        for box, value in zip(targets["boxes"].numpy(), targets["mask_values"].tolist(), strict=True):
-            ys, xs = np.nonzero(mask == value)
-            assert np.allclose(box, [xs.min(), ys.min(), xs.max(), ys.max()], atol=2.0)
-
-
 def test_data_order_is_seeded_and_reads_each_shard_once(synthetic_dir):
     dataset = SamplesDataset(synthetic_dir, pipeline="synthetic", split=None)
     sampler = ShardGroupedSampler(dataset, seed=7)

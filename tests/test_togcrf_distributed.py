@@ -20,9 +20,9 @@ from togcrf.train import TrainConfig, build_optimizer
 ROOT = Path(__file__).resolve().parents[1]
 
 #: A small TOG that keeps two processes quick on 2 cores (see tests/test_togcrf_train.py).
-SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
-         "rpn_post_nms_train": 100, "rpn_pre_nms_test": 100, "rpn_post_nms_test": 50, "grasp_rois_per_image": 4,
-         "detections_per_image": 10}
+SMALL = {"grasp_head.channels": 32, "box_head.size": 128, "box_head.batch_per_image": 64, "rpn.pre_nms_train": 200,
+         "rpn.post_nms_train": 100, "rpn.pre_nms_test": 100, "rpn.post_nms_test": 50, "grasp_head.rois_per_image": 4,
+         "box_head.detections_per_image": 10}
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def _reference_step(data_dir: Path) -> dict[str, torch.Tensor]:
     sampler = ShardGroupedSampler(dataset, seed=0)
     sampler.set_epoch(0)
     torch.manual_seed(0)
-    model = build_model("tog", "resnet18", **SMALL)
+    model = build_model("tog", "resnet18", {**SMALL})
     model.train()
     gradients: dict[str, torch.Tensor] = {}
     for item in list(sampler)[:2]:
@@ -99,7 +99,7 @@ def test_two_processes_take_the_step_of_their_averaged_gradients(data_dir: Path,
 
     reference = _reference_step(data_dir)
     torch.manual_seed(0)
-    initial = build_model("tog", "resnet18", **SMALL).state_dict()
+    initial = build_model("tog", "resnet18", {**SMALL}).state_dict()
     step = _distance(reference, initial)
     assert step > 1e-3
     assert _distance(reference, checkpoint["model"]) < 1e-4 * step

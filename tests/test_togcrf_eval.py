@@ -24,7 +24,7 @@ def train_briefly(data_dir: Path, run_dir: Path, model: str) -> Path:
     """One training step of a ResNet-18 model on two synthetic samples; returns the checkpoint."""
     train(TrainConfig(data=str(data_dir), out=str(run_dir), pipeline="synthetic", model=model, backbone="resnet18",
                       epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1, device="cpu",
-                      amp=False, model_options={"detections_per_image": 5, "rpn_post_nms_test": 50}))
+                      amp=False, model_options={"box_head.detections_per_image": 5, "rpn.post_nms_test": 50}))
     return run_dir / "checkpoint.pt"
 
 

@@ -13,7 +13,7 @@ from osgd.contract.taxonomy import TASK_INDEX, TASKS
 from togcrf.anchors import ANCHOR_ANGLES
 from togcrf.fcgn import box_candidates, image_anchors
 from togcrf.losses import LOSS_KEYS
-from togcrf.model import MODEL_NAMES, FcgnOptions, GraspDetector, ModelOptions, build_model
+from togcrf.model import MODEL_NAMES, GraspDetector, build_model
 
 
 def _targets() -> list[dict[str, torch.Tensor]]:
@@ -45,24 +45,22 @@ def test_image_anchors_follow_the_grasp_head_order() -> None:
 
 def test_build_model_returns_fcgn_task() -> None:
     assert "fcgn-task" in MODEL_NAMES
-    model = build_model("fcgn-task", "resnet18", fcgn_level=2, detections_per_image=7)
+    model = build_model("fcgn-task", "resnet18", {"fcgn.level": 2, "box_head.detections_per_image": 7})
     assert isinstance(model, GraspDetector) and model.grasp_branch == "image"
-    assert isinstance(model.options, FcgnOptions)
-    assert model.grasp_stride == 16 and model.options.detections_per_image == 7
+    assert model.options.fcgn.level == 2
+    assert model.grasp_stride == 16 and model.options.box_head.detections_per_image == 7
     assert model.crf is None
-    with pytest.raises(TypeError, match="unknown model options"):
-        build_model("fcgn-task", "resnet18", no_such_option=1)
-    with pytest.raises(ValueError, match="fcgn_level must be 0-3"):
-        build_model("fcgn-task", "resnet18", fcgn_level=4)
+    with pytest.raises(ValueError, match="unknown model option no_such_option"):
+        build_model("fcgn-task", "resnet18", {"no_such_option": 1})
+    with pytest.raises(ValueError, match=r"fcgn\.level must be 0-3"):
+        build_model("fcgn-task", "resnet18", {"fcgn.level": 4})
 
 
 def test_fcgn_task_builds_only_its_own_grasp_head() -> None:
     """FCGN + Task builds its own grasp head only (no TOG head built and thrown away)."""
-    model = build_model("fcgn-task", "resnet18", fcgn_channels=32, fcgn_blocks=2)
+    model = build_model("fcgn-task", "resnet18", {"fcgn.channels": 32, "fcgn.blocks": 2})
     assert model.grasp_head.entry.out_channels == 32 and len(model.grasp_head.blocks) == 3  # 2 blocks + norm
     assert {name.split(".")[0] for name in model.state_dict()} == {"backbone", "rpn", "roi_heads", "grasp_head"}
-    with pytest.raises(TypeError, match="FcgnOptions"):
-        GraspDetector("resnet18", options=ModelOptions(), grasp_branch="image")
     with pytest.raises(ValueError, match="unknown grasp branch"):
         GraspDetector("resnet18", grasp_branch="pixels")
 
@@ -90,7 +88,7 @@ def test_box_candidates_keep_the_most_stable_inside_each_box() -> None:
 
 def test_training_losses_fall_when_fitting_one_image() -> None:
     torch.manual_seed(0)
-    model = build_model("fcgn-task", "resnet18", fcgn_channels=32)
+    model = build_model("fcgn-task", "resnet18", {"fcgn.channels": 32})
     model.train()
     losses = model([_image()], _targets())
     assert tuple(losses) == LOSS_KEYS
@@ -113,8 +111,8 @@ def test_training_losses_fall_when_fitting_one_image() -> None:
 
 def test_eval_output_follows_the_contract() -> None:
     torch.manual_seed(1)
-    model = build_model("fcgn-task", "resnet18", fcgn_channels=32, fcgn_candidates_per_box=20,
-                        box_score_threshold=0.0, detections_per_image=6)
+    model = build_model("fcgn-task", "resnet18", {"fcgn.channels": 32, "fcgn.candidates_per_box": 20,
+                                                  "box_head.score_threshold": 0.0, "box_head.detections_per_image": 6})
     model.eval()
     with torch.inference_mode():
         outputs = model([_image(), _image()[:, :96, :120]])

@@ -11,13 +11,13 @@ from typer.testing import CliRunner
 
 from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
 from togcrf.cli import app
+from togcrf.geometry import box_iou
 from togcrf.metrics import (
     Detections,
     GroundTruth,
     TableTwoEvaluator,
     average_precision,
     average_precision_11_point,
-    box_iou,
     match_detections,
     match_detections_voc,
     match_objects_in_order,

@@ -8,17 +8,13 @@ import numpy as np
 import pytest
 
 from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
+from togcrf.geometry import angle_difference, box_iou, grasp_match_matrix, rectangle_corners, rectangle_jaccard
 from togcrf.metrics import (
     Detections,
     GroundTruth,
     TableTwoEvaluator,
-    angle_difference,
     average_precision,
-    box_iou,
-    grasp_match_matrix,
     match_detections,
-    rectangle_corners,
-    rectangle_jaccard,
     right_tasks,
 )
 

@@ -30,8 +30,9 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     write_synthetic_samples(ShardStore(data_dir), 6)
     train(TrainConfig(data=str(data_dir), out=str(root / "run"), pipeline="synthetic", model="tog",
                       backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1,
-                      device="cpu", amp=False, model_options={"detections_per_image": 4, "rpn_post_nms_test": 50,
-                                                              "box_score_threshold": 0.0}))
+                      device="cpu", amp=False,
+                      model_options={"box_head.detections_per_image": 4, "rpn.post_nms_test": 50,
+                                     "box_head.score_threshold": 0.0}))
     return data_dir, root / "run" / "checkpoint.pt"
 
 
@@ -89,10 +90,15 @@ def test_predict_errors(trained: tuple[Path, Path], tmp_path: Path) -> None:
     data_dir, checkpoint = trained
     eight_bit = tmp_path / "eight.png"
     cv2.imwrite(str(eight_bit), np.zeros((8, 8), dtype=np.uint8))
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.full((1, 1), 700, dtype=np.uint16))
+    objects = tmp_path / "objects.npy"
+    np.save(objects, np.array([{"depth": 1}], dtype=object), allow_pickle=True)
     for source, expected in ((str(eight_bit), "16-bit"), ("no_such_sample", "no_such_sample"),
-                             (str(tmp_path / "gone.npy"), "gone.npy")):
+                             (str(tmp_path / "gone.npy"), "gone.npy"), (str(tiny), "tiny.png: a depth image of 1 x 1"),
+                             (str(objects), "objects.npy: not a numpy array of depth")):
         result = CliRunner().invoke(app, ["predict", str(checkpoint), source, "--data", str(data_dir)])
-        assert result.exit_code == 1 and expected in result.output
+        assert result.exit_code == 1 and expected in result.output and result.output.count("\n") == 1, result.output
     result = CliRunner().invoke(app, ["predict", str(checkpoint), "synthetic_000001", "--data", str(data_dir),
                                       "--task", "hand over", "--min-score", "0"])
     assert result.exit_code == 1 and "--category" in result.output

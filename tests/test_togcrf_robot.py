@@ -28,7 +28,8 @@ from osgd.samples.renderer import make_renderer
 from osgd.store import ShardStore, canonical_json
 from togcrf.cli import app
 from togcrf.robot import report
-from togcrf.robot.execute import REASONS, Execution, RobotParams, execute, judge, lift_rectangle
+from togcrf.robot.execute import REASONS, Execution, execute, judge
+from togcrf.robot.lifting import RobotParams, lift_rectangle
 from togcrf.robot.pile import clear_grasps, feasible_pile, task_grasps
 from togcrf.robot.policies import OraclePolicy
 from togcrf.robot.protocol import (
@@ -257,7 +258,7 @@ def test_a_checkpoint_policy_takes_test_time_views(tmp_path: Path) -> None:
     write_synthetic_samples(ShardStore(tmp_path / "data"), 4)
     train(TrainConfig(data=str(tmp_path / "data"), out=str(tmp_path / "run" / "tog"), pipeline="synthetic",
                       model="tog", backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False,
-                      warmup_steps=1, device="cpu", amp=False, model_options={"detections_per_image": 5}))
+                      warmup_steps=1, device="cpu", amp=False, model_options={"box_head.detections_per_image": 5}))
     spec = RunSpec(None, (), None, (str(tmp_path / "run" / "tog" / "checkpoint.pt"),), tmp_path, min_score=0.0,
                    min_stability=0.0, views=8)
     (viewed,) = make_policies(spec, None)

@@ -20,15 +20,18 @@ from osgd.store import ShardStore
 from togcrf.anchors import decode
 from togcrf.checkpoint import load_checkpoint
 from togcrf.cli import app
+from togcrf.config import TrainConfig
 from togcrf.data import SamplesDataset, collate
+from togcrf.engine import cpu_has_native_bfloat16
+from togcrf.losses import LOSS_KEYS
 from togcrf.metrics import right_tasks
 from togcrf.model import batch_images, build_model
-from togcrf.train import LOSS_TERMS, TrainConfig, cpu_has_native_bfloat16, train
+from togcrf.train import train
 
 #: A small model that keeps CPU runs quick (see tests/test_togcrf_model.py).
-SMALL = {"grasp_channels": 32, "box_head_size": 128, "box_batch_per_image": 64, "rpn_pre_nms_train": 200,
-         "rpn_post_nms_train": 100, "rpn_pre_nms_test": 100, "rpn_post_nms_test": 50, "grasp_rois_per_image": 4,
-         "detections_per_image": 10}
+SMALL = {"grasp_head.channels": 32, "box_head.size": 128, "box_head.batch_per_image": 64, "rpn.pre_nms_train": 200,
+         "rpn.post_nms_train": 100, "rpn.pre_nms_test": 100, "rpn.post_nms_test": 50, "grasp_head.rois_per_image": 4,
+         "box_head.detections_per_image": 10}
 
 
 @pytest.fixture(scope="module")
@@ -76,11 +79,11 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
     assert set(checkpoint) >= {"model", "optimizer", "scheduler", "epoch", "config", "data"}
     assert checkpoint["epoch"] == 1
     assert checkpoint["config"]["model"] == "tog-crfs" and checkpoint["config"]["image_size"] == 64
-    assert checkpoint["config"]["model_options"]["grasp_channels"] == 32
+    assert checkpoint["config"]["model_options"]["grasp_head"]["channels"] == 32
     assert checkpoint["data"]["pipeline"] == "synthetic" and len(checkpoint["data"]["shards"]) == 2
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
     assert [row["epoch"] for row in rows] == ["0", "1"]
-    assert set(LOSS_TERMS) <= set(rows[0]) and "train_acc_t_top1" in rows[0]
+    assert set(LOSS_KEYS) <= set(rows[0]) and "train_acc_t_top1" in rows[0]
     assert json.loads((run_dir / "config.json").read_text())["backbone"] == "resnet18"
 
     # same seed, same data order and augmentation: resuming gives the uninterrupted run's weights
@@ -98,11 +101,11 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
     # A checkpoint written before the depth reference was saved was trained on the table plane, and one
     # written before a model option existed ran with its default: both resume.
     del checkpoint["config"]["depth_reference"]
-    del checkpoint["config"]["model_options"]["fpn_max_stride"]
+    del checkpoint["config"]["model_options"]["backbone"]["fpn_max_stride"]
     torch.save(checkpoint, run_dir / "checkpoint.pt")
     with pytest.raises(ValueError, match="cannot resume, model_options"):
         train(quick_config(data_dir, run_dir, epochs=3, resume=True, model_options={
-            **SMALL, "fpn_max_stride": 16, "rpn_anchor_sizes": [16, 32, 64, 128]}))
+            **SMALL, "backbone.fpn_max_stride": 16, "rpn.anchor_sizes": [16, 32, 64, 128]}))
     assert load_checkpoint(run_dir / "checkpoint.pt")[1]["depth_reference"] == "table"
     assert train(quick_config(data_dir, run_dir, epochs=3, resume=True))["epoch"] == 2
 
@@ -128,29 +131,29 @@ def test_init_starts_from_the_weights_of_another_run(data_dir, tmp_path):
     assert all(torch.allclose(tuned_weights[name].float(), value.float(), atol=1e-6) for name, value in weights.items())
     with pytest.raises(ValueError, match=r"--init .*layers differ"):
         train(quick_config(data_dir, tmp_path / "other", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
-                           model_options={**SMALL, "grasp_channels": 16}))
+                           model_options={**SMALL, "grasp_head.channels": 16}))
     with pytest.raises(FileNotFoundError, match="--init"):
         train(quick_config(data_dir, tmp_path / "missing", model="tog", init=str(tmp_path / "nothing.pt")))
 
 
-def test_train_only_trains_a_new_layer_on_a_frozen_checkpoint(data_dir, tmp_path):
+def test_train_only_trains_new_layers_on_a_frozen_checkpoint(data_dir, tmp_path):
+    """TOG-CRFs from a TOG checkpoint with ``--train-only crf``: the CRF's layers are new, the rest stays frozen."""
     train(quick_config(data_dir, tmp_path / "source", model="tog"))
     weights = torch.load(tmp_path / "source" / "checkpoint.pt", weights_only=True)["model"]
-    head = quick_config(data_dir, tmp_path / "head", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
-                        model_options={**SMALL, "grasp_confidence": True}, train_only=["grasp_head.confidence"],
-                        lr=0.1, warmup_steps=0)
-    train(head)
-    trained = torch.load(tmp_path / "head" / "checkpoint.pt", weights_only=True)["model"]
+    crf = quick_config(data_dir, tmp_path / "crf", model="tog-crfs", init=str(tmp_path / "source" / "checkpoint.pt"),
+                       train_only=["crf"], lr=0.1, warmup_steps=0)
+    train(crf)
+    trained = torch.load(tmp_path / "crf" / "checkpoint.pt", weights_only=True)["model"]
     assert all(torch.equal(trained[name], value) for name, value in weights.items())
-    new = [name for name in trained if name.startswith("grasp_head.confidence")]
+    new = [name for name in trained if name.startswith("crf.")]
     assert new and not set(new) & set(weights)
     torch.manual_seed(0)  # the run's seed: its new layers start as this model's
-    initial = build_model("tog", "resnet18", **SMALL, grasp_confidence=True).state_dict()
+    initial = build_model("tog-crfs", "resnet18", {**SMALL}).state_dict()
     assert any(not torch.equal(trained[name], initial[name]) for name in new)
     # without --train-only naming them, new layers are still an error
     with pytest.raises(ValueError, match=r"--init .*layers differ"):
-        train(quick_config(data_dir, tmp_path / "all", model="tog", init=str(tmp_path / "source" / "checkpoint.pt"),
-                           model_options={**SMALL, "grasp_confidence": True}))
+        train(quick_config(data_dir, tmp_path / "all", model="tog-crfs",
+                           init=str(tmp_path / "source" / "checkpoint.pt")))
     with pytest.raises(ValueError, match=r"--train-only nothing\.here: no parameter"):
         train(quick_config(data_dir, tmp_path / "none", model="tog", train_only=["nothing.here"]))
 
@@ -163,11 +166,11 @@ def test_every_variant_of_table_ii_trains_on_rendered_samples(golden_dir, tmp_pa
     model, config = load_checkpoint(tmp_path / model_name)
     assert config["model"] == model_name
     rows = list(csv.DictReader((tmp_path / model_name / "metrics.csv").open()))
-    assert len(rows) == 2 and all(math.isfinite(float(rows[-1][term])) for term in LOSS_TERMS)
+    assert len(rows) == 2 and all(math.isfinite(float(rows[-1][term])) for term in LOSS_KEYS)
     if terms is None:
         assert model.crf is None
         return
-    initial = build_model(model_name, **SMALL).crf
+    initial = build_model(model_name, "resnet18", {**SMALL}).crf
     for name, used in zip(("omega", "mu"), terms, strict=True):
         trained, start = getattr(model.crf, name), getattr(initial, name)
         assert (trained is not None) == used, name
@@ -182,7 +185,7 @@ def test_tensorboard_gets_the_scalars_of_metrics_csv(data_dir, tmp_path):
     rows = list(csv.DictReader((tmp_path / "run" / "metrics.csv").open()))
     events = event_accumulator.EventAccumulator(str(tmp_path / "run" / "tensorboard"))
     events.Reload()
-    for key in ("loss", *LOSS_TERMS):
+    for key in ("loss", *LOSS_KEYS):
         logged = [(event.step, event.value) for event in events.Scalars(f"epoch/{key}")]
         assert [step for step, _ in logged] == [0, 1], key
         assert [value for _, value in logged] == pytest.approx([float(row[key]) for row in rows], rel=1e-5), key
@@ -208,7 +211,7 @@ def test_cli_trains_and_refuses_to_overwrite(data_dir, tmp_path):
 #: Settings under which the detector overfits a few synthetic samples from scratch (measured in issue #8:
 #: lr 0.02 at batch 2 is unstable, lr 0.005-0.01 fits). Every grasp RoI of the RCNN sample trains the grasp
 #: branch (16 per image, the model default), so the stability head sees enough positives per step.
-FIT_OPTIONS = {**SMALL, "grasp_rois_per_image": 16}
+FIT_OPTIONS = {**SMALL, "grasp_head.rois_per_image": 16}
 
 
 def fit(data_dir, out, epochs: int, samples: int, image_size: int, model: str = "tog-crfs") -> list[dict[str, str]]:

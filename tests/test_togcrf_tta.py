@@ -27,8 +27,8 @@ from togcrf.tta import (
 def model() -> torch.nn.Module:
     """An untrained TOG whose stability and task outputs vary strongly from candidate to candidate."""
     torch.manual_seed(0)
-    detector = build_model("tog", "resnet18", grasp_channels=32, box_head_size=128, detections_per_image=5,
-                           box_score_threshold=0.0)
+    detector = build_model("tog", "resnet18", {"grasp_head.channels": 32, "box_head.size": 128,
+                                               "box_head.detections_per_image": 5, "box_head.score_threshold": 0.0})
     for layer in (detector.grasp_head.stability, detector.grasp_head.task):
         torch.nn.init.normal_(layer.weight, std=0.5)
     return detector.eval()
@@ -67,7 +67,7 @@ def test_boxes_are_carried_by_their_edges(view) -> None:
 @pytest.mark.parametrize("view", VIEWS)
 def test_candidates_land_on_the_anchors_of_the_carried_box(view, grid) -> None:
     """Candidate c of a box is, moved into the view, anchor perm[c] of the box carried into the view (on the
-    paper's 7 x 7 cells and on a finer ``grasp_grid``)."""
+    paper's 7 x 7 cells and on a finer grid)."""
     shape = (80, 100)  # not square, so that a turn matters
     box = torch.tensor([[10.0, 20.0, 61.0, 45.0]])
     anchors = roi_anchors(box, 10.0, grid)[0].double().numpy()
@@ -87,11 +87,10 @@ def test_the_average_over_all_views_does_not_depend_on_the_view_given(model) -> 
     torch.manual_seed(1)
     image = torch.rand(1, 64, 64)
     boxes = torch.tensor([[5.0, 8.0, 40.0, 30.0], [20.0, 22.0, 60.0, 63.0]])
-    labels = torch.tensor([1, 4])
 
     def average(picture: torch.Tensor, rois: torch.Tensor) -> torch.Tensor:
         with torch.inference_mode():
-            return torch.stack([view_grasps(model, picture, rois, labels, view)[0] for view in VIEWS]).mean(dim=0)
+            return torch.stack([view_grasps(model, picture, rois, view)[0] for view in VIEWS]).mean(dim=0)
 
     given = average(image, boxes)
     for view in VIEWS[1:]:
@@ -108,8 +107,8 @@ def test_averaged_output_keeps_the_boxes_and_averages_the_candidates(model) -> N
         assert len(plain["boxes"]) > 0
         one = view_averaged_output(model, image, 1)
         two = view_averaged_output(model, image, 2)
-        mirrored, mirrored_tasks = view_grasps(model, image, plain["boxes"], plain["labels"], VIEWS[1])
-        identity, _ = view_grasps(model, image, plain["boxes"], plain["labels"], VIEWS[0])
+        mirrored, mirrored_tasks = view_grasps(model, image, plain["boxes"], VIEWS[1])
+        identity, _ = view_grasps(model, image, plain["boxes"], VIEWS[0])
     for key in ("boxes", "scores", "labels", "grasps", "grasp_stability"):
         torch.testing.assert_close(one[key], plain[key])
     for key in ("boxes", "scores", "labels", "grasps"):

@@ -23,12 +23,13 @@ os.environ.setdefault("ATEN_CPU_CAPABILITY", "default")
 os.environ.setdefault("DNNL_MAX_CPU_ISA", "SSE41")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import pyarrow.parquet as pq  # noqa: E402
-import torch  # noqa: E402
+import pyarrow.parquet as pq
+import torch
 
-from osgd.store import ShardStore  # noqa: E402
-from togcrf.evaluate import evaluate_checkpoint  # noqa: E402
-from togcrf.train import TrainConfig, train  # noqa: E402
+from osgd.store import ShardStore
+from togcrf.config import TrainConfig
+from togcrf.evaluate import evaluate_checkpoint
+from togcrf.train import train
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,19 +37,21 @@ ROOT = Path(__file__).resolve().parents[1]
 STEPS = 30
 
 #: The CPU recipe's model options at a width that trains quickly.
-RECIPE_OPTIONS = {"fpn_min_stride": 8, "fpn_max_stride": 16, "rpn_anchor_sizes": [27, 53, 107], "fpn_channels": 32,
-                  "box_batch_per_image": 64, "box_head_size": 64, "grasp_channels": 32, "rpn_pre_nms_train": 200,
-                  "rpn_post_nms_train": 100, "rpn_pre_nms_test": 100, "rpn_post_nms_test": 50,
-                  "grasp_anchor_size": 10.0, "grasp_ranking_weight": 0.2, "grasp_rois_per_image": 4,
-                  "detections_per_image": 10}
+RECIPE_OPTIONS = {"backbone": {"fpn_min_stride": 8, "fpn_max_stride": 16, "fpn_channels": 32},
+                  "rpn": {"anchor_sizes": [27, 53, 107], "pre_nms_train": 200, "post_nms_train": 100,
+                          "pre_nms_test": 100, "post_nms_test": 50},
+                  "box_head": {"batch_per_image": 64, "size": 64, "detections_per_image": 10},
+                  "grasp_head": {"channels": 32, "anchor_size": 10.0, "rois_per_image": 4},
+                  "loss": {"ranking_weight": 0.2}}
 
-#: The traced runs: name -> training options (on top of the common ones in :func:`config`).
+#: The traced runs: name -> training options (on top of the common ones in :func:`trace_run`).
 RUNS = {
     "tog-crfs-recipe": {"model": "tog-crfs", "optimizer": "adamw", "lr_schedule": "cosine", "lr": 0.001,
                         "scale_jitter": 0.15, "model_options": RECIPE_OPTIONS},
     "fcgn-task-sgd": {"model": "fcgn-task", "optimizer": "sgd", "lr": 0.01,
-                      "model_options": {"box_head_size": 64, "fpn_channels": 32, "rpn_pre_nms_train": 200,
-                                        "rpn_post_nms_train": 100, "fcgn_channels": 32}},
+                      "model_options": {"box_head": {"size": 64}, "backbone": {"fpn_channels": 32},
+                                        "rpn": {"pre_nms_train": 200, "post_nms_train": 100},
+                                        "fcgn": {"channels": 32}}},
 }
 
 #: Evaluation figures compared (the speed columns are left out: they are timings).

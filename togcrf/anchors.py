@@ -20,18 +20,6 @@ Geometry and encoding follow ROI-GD (REFERENCE section 3):
   (mod 180 degrees) is at most 22.5 degrees; with several matches the target
   is the mean of their encodings.
 
-Our options (issue #15, ``togcrf.model.ModelOptions``): ``positive_radius``
-widens "in the anchor's cell" to ``|dx|, |dy| <= (1/2 + radius) cells`` (1:
-the 3 x 3 cells around the grasp centre, as FCOS's centre sampling), and the
-target is then the nearest matched grasp (the grasps at the same, nearest
-centre, for their tasks), not the mean of grasps at different places.
-:func:`regression_targets_within` gives the same nearest-grasp targets to the
-anchors within a radius for the regression alone (``grasp_regression_radius``).
-:func:`near_ground_truth` marks the anchors close to a ground-truth grasp
-that are not positive, which :mod:`togcrf.losses` keeps out of the hard
-negatives: the annotations are a sparse sample of the stable grasps, so a
-spot a cell away from an annotated grasp is no evidence of "not stable".
-
 Our choice: the anchor square has a fixed side in pixels of the network input
 (``anchor_size``, default 16 px), not a size relative to the RoI cell. Grasp
 rectangles scale with the gripper opening and the finger width, not with the
@@ -168,7 +156,6 @@ def match(
     grasp_tasks: torch.Tensor,
     task_count: int,
     grid: int = GRID,
-    positive_radius: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Assign the ground-truth grasps of each RoI's object to its anchors.
 
@@ -186,9 +173,7 @@ def match(
         Task index of each ground-truth grasp.
     task_count : int
     grid : int
-    positive_radius : float
-        Cells beyond the anchor's own within which a grasp centre makes it
-        positive (0: the paper's own cell; see the module docstring).
+        Cells per side of the RoI.
 
     Returns
     -------
@@ -201,10 +186,7 @@ def match(
         grasp position may be annotated with several tasks); zero where not
         positive.
     """
-    matched = _near(anchors, rois, grasps, grasp_valid, grid, 0.5 + positive_radius, ANGLE_STEP)
-    if positive_radius > 0:
-        distance = (grasps[:, None, :, :2] - anchors[:, :, None, :2]).norm(dim=-1).masked_fill(~matched, float("inf"))
-        matched &= distance <= distance.min(dim=-1, keepdim=True).values + 1e-3
+    matched = _near(anchors, rois, grasps, grasp_valid, grid, 0.5, ANGLE_STEP)
     weights = matched.to(anchors.dtype)
     count = weights.sum(dim=-1)
     positive = count > 0
@@ -217,56 +199,6 @@ def match(
     one_hot = torch.nn.functional.one_hot(grasp_tasks.clamp(min=0), task_count).to(anchors.dtype)
     task_targets = torch.einsum("rkg,rgt->rkt", weights, one_hot) / denominator
     return positive, regression_targets, task_targets
-
-
-def regression_targets_within(anchors: torch.Tensor, rois: torch.Tensor, grasps: torch.Tensor,
-                              grasp_valid: torch.Tensor, radius: float, grid: int = GRID,
-                              ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Anchors within ``1/2 + radius`` cells (angle within 22.5 degrees) of a grasp, and their regression targets.
-
-    The target of such an anchor is the encoding of its nearest grasp (the
-    mean over grasps at the same, nearest centre), as :func:`match` with
-    ``positive_radius=radius``; only the regression uses it
-    (``togcrf.model.ModelOptions.grasp_regression_radius``), so that a
-    candidate chosen a cell away from an annotated grasp is moved onto it.
-    The parameters are those of :func:`near_ground_truth` (``radius`` > 0).
-
-    Returns
-    -------
-    regressed : (R, K) bool
-    regression_targets : (R, K, 5) float
-        Zero where not ``regressed``.
-    """
-    tasks = torch.zeros(grasp_valid.shape, dtype=torch.int64, device=grasp_valid.device)
-    regressed, regression_targets, _ = match(anchors, rois, grasps, grasp_valid, tasks, 1, grid, radius)
-    return regressed, regression_targets
-
-
-def near_ground_truth(
-    anchors: torch.Tensor,
-    rois: torch.Tensor,
-    grasps: torch.Tensor,
-    grasp_valid: torch.Tensor,
-    radius: float,
-    grid: int = GRID,
-) -> torch.Tensor:
-    """Anchors close to a ground-truth grasp: centre within ``1/2 + radius`` cells, angle within 45 degrees.
-
-    Parameters
-    ----------
-    anchors : (R, K, 5) float
-    rois : (R, 4) float
-    grasps : (R, G, 5) float
-    grasp_valid : (R, G) bool
-    radius : float
-        Cells beyond the anchor's own.
-    grid : int
-
-    Returns
-    -------
-    (R, K) bool
-    """
-    return _near(anchors, rois, grasps, grasp_valid, grid, 0.5 + radius, 2 * ANGLE_STEP).any(dim=-1)
 
 
 def _near(anchors: torch.Tensor, rois: torch.Tensor, grasps: torch.Tensor, grasp_valid: torch.Tensor, grid: int,

@@ -6,15 +6,16 @@
 - ``model``, ``optimizer``, ``scheduler``, ``scaler``: state dicts (the
   scaler's is empty without float16 mixed precision); ``--resume`` restores
   all four;
-- ``config``: the training options (``togcrf.train.TrainConfig`` as a dict,
-  model options filled in);
+- ``config``: the resolved training options (``togcrf.config.TrainConfig``
+  as a dict, the model options nested by group; flat model options of older
+  checkpoints are migrated on loading, ``togcrf.model.options.stored_options``);
 - ``epoch``: the last epoch trained (0-based); ``trained_seconds``,
   ``stopped_by_budget``: the time budget's state;
 - ``data``: what the run trained on (data dir, pipeline, split, shard keys);
 - ``vocabulary``: the categories and task labels the model's outputs are
   indexed by, and ``schema_version``: the samples schema it read
-  (:mod:`osgd.contract`). Checkpoints written before these were recorded
-  (2026-11) read as today's vocabulary.
+  (:mod:`osgd.contract`). Checkpoints without them read as today's
+  vocabulary.
 
 A model refuses data labelled with another vocabulary
 (:func:`check_vocabulary`).
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import os
+import pickle
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,14 +34,14 @@ import torch
 
 from osgd.contract.schemas import SCHEMA_VERSION
 from osgd.contract.taxonomy import VOCABULARY, vocabulary_difference
+from togcrf.model import build_model, stored_options
 
 logger = logging.getLogger(__name__)
 
 #: The file name of a run dir's checkpoint.
 CHECKPOINT_FILE = "checkpoint.pt"
 
-#: Training config entries added after checkpoints were first written, with what older checkpoints were
-#: trained with: ``depth_reference`` (2026-11-25), the fitted table plane since issue #15.
+#: Training config entries that older checkpoints lack, with the value those checkpoints were trained with.
 CONFIG_ADDED_LATER = {"depth_reference": "table"}
 
 
@@ -89,7 +91,7 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
         raise FileNotFoundError(f"{path}: no checkpoint")
     try:
         checkpoint = torch.load(path, map_location=device, weights_only=True)
-    except (RuntimeError, ValueError, EOFError, OSError) as error:
+    except (RuntimeError, ValueError, EOFError, OSError, pickle.UnpicklingError) as error:
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise ValueError(f"{path}: not a readable togcrf checkpoint ({first})") from error
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
@@ -120,12 +122,16 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[torch.nn.Mod
     FileNotFoundError, ValueError
         Missing file, or not a togcrf checkpoint.
     """
-    from togcrf.model import build_model  # noqa: PLC0415 - the model module imports torchvision
-
     checkpoint = read_checkpoint(path, device)
     config = dict(checkpoint["config"])
-    model = build_model(config["model"], config["backbone"], **config.get("model_options", {}))
-    model.load_state_dict(checkpoint["model"])
+    try:
+        model = build_model(config["model"], config["backbone"], stored_options(config.get("model_options")))
+        model.load_state_dict(checkpoint["model"])
+    except (ValueError, TypeError, RuntimeError, KeyError) as error:
+        lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()] or [type(error).__name__]
+        summary = " ".join(lines[:2])  # load_state_dict says what differs on its second line
+        summary = summary if len(summary) <= 300 else summary[:297] + "..."
+        raise ValueError(f"{checkpoint_path(path)}: cannot build its model: {summary}") from error
     model.to(device).eval()
     config["epoch"] = checkpoint.get("epoch")
     config["data"] = checkpoint.get("data")

@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 log = logging.getLogger(__name__)
 
@@ -49,8 +51,6 @@ def read_curves(run_dir: Path) -> dict[str, list[float]]:
 
 def _add_legends(figure: Any, panels: dict[Any, dict[str, str]], run_colours: list[tuple[str, str]]) -> None:
     """Each panel's line styles in its own legend, and the runs' (name, colour) once under the panels."""
-    from matplotlib.lines import Line2D  # noqa: PLC0415
-
     run_handles = [Line2D([], [], color=colour, label=name) for name, colour in run_colours]
 
     for axes, lines in panels.items():
@@ -70,12 +70,8 @@ def draw_curves(run_dirs: list[Path], out: Path) -> Path:
     Each run is one colour (named once, in a legend under the panels); each metric is one line style
     (named in its panel's legend), so that the legends stay short however many runs are drawn.
     """
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    figure, (losses, validation) = plt.subplots(1, 2, figsize=(11, 4.2))
+    figure = Figure(figsize=(11, 4.2))
+    losses, validation = figure.subplots(1, 2)
     run_colours: list[tuple[str, str]] = []
     for index, run_dir in enumerate(run_dirs):
         curves = read_curves(run_dir)
@@ -96,7 +92,6 @@ def draw_curves(run_dirs: list[Path], out: Path) -> Path:
     _add_legends(figure, {losses: LOSS_LINES, validation: VALIDATION_LINES}, run_colours)
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=120)
-    plt.close(figure)
     return out
 
 
@@ -108,11 +103,7 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path, typer.Option("--out", help="PNG to write.")] = Path("curves.png"),
     ) -> None:
         """Draw the losses and validation metrics per epoch of training runs as a PNG."""
-        try:
-            path = draw_curves(runs, out)
-        except FileNotFoundError as error:
-            typer.echo(f"error: {error}", err=True)
-            raise typer.Exit(1) from error
+        path = draw_curves(runs, out)
         typer.echo(f"wrote {path}")
 
     app.command("curves")(curves_command)

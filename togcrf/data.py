@@ -12,7 +12,7 @@ pixel coordinates, fitted robustly so that the objects on it do not pull it
 up) and the image becomes the height above it in units of ``DEPTH_UNIT``
 (0.1 m): ``(table - depth) / 0.1``. The table is 0 everywhere, also where
 the camera is tilted (a median left a 2-3 cm ramp across the image, as
-large as the tools' heights; issue #15), objects a few centimetres high are
+large as the tools' heights), objects a few centimetres high are
 about 0.2-1, independent of the camera distance. Pixels without a reading
 are 0.
 
@@ -56,8 +56,8 @@ DEFAULT_SCALE_JITTER = 0.1
 
 
 #: What the depth image is measured from (:func:`normalise_depth`): ``"table"``, the fitted table
-#: plane (the CPU recipe, issue #15), or ``"median"``, the image's median depth (before the recipe,
-#: which leaves the camera-tilt ramp of the table in the image).
+#: plane (the default), or ``"median"``, the image's median depth (which leaves the camera-tilt ramp
+#: of the table in the image).
 DEPTH_REFERENCES = ("table", "median")
 
 #: Pixels closer than the fitted table by more than this are not table (metres, our choice: above the noise).
@@ -225,7 +225,7 @@ class Augmentation:
         """A random augmentation: fair coin flips, a uniform quarter-turn count, a uniform scale in [1 - jitter, 1].
 
         Never above 1: an image larger than ``image_size`` would be padded to the
-        next multiple of 32 px, a third more pixels per step at 192 px (issue #15).
+        next multiple of 32 px, a third more pixels per step at 192 px.
         """
         return Augmentation(
             flip_x=bool(rng.integers(2)),
@@ -320,17 +320,11 @@ def augment(
     return out_images, new_boxes.astype(np.float32), new_rectangles.astype(np.float32)
 
 
-def sample_targets(sample: Sample, boxes: np.ndarray, rectangles: np.ndarray,
-                   instance_mask: np.ndarray | None = None) -> dict[str, torch.Tensor]:
+def sample_targets(sample: Sample, boxes: np.ndarray, rectangles: np.ndarray) -> dict[str, torch.Tensor]:
     """The model's target dict of a sample (contract of ``togcrf.model``).
 
     Objects are numbered as in ``sample.boxes``; labels are category index + 1
-    (0 is the background class). With ``instance_mask`` (the sample's
-    ``mask`` in the network input's frame: 0 background, scene object index
-    + 1 on each object's visible pixels) the dict also holds it as
-    ``instance_mask`` (H, W) and each object's value in it as
-    ``mask_values`` (N,), which train the grasp head's object map
-    (``ModelOptions.grasp_object_map``).
+    (0 is the background class).
     """
     targets = {
         "boxes": torch.as_tensor(boxes, dtype=torch.float32).reshape(-1, 4),
@@ -339,9 +333,6 @@ def sample_targets(sample: Sample, boxes: np.ndarray, rectangles: np.ndarray,
         "grasp_objects": torch.as_tensor(sample.grasp_objects, dtype=torch.int64),
         "grasp_tasks": torch.as_tensor(sample.grasp_tasks, dtype=torch.int64),
     }
-    if instance_mask is not None:
-        targets["instance_mask"] = torch.from_numpy(np.ascontiguousarray(instance_mask, dtype=np.uint8))
-        targets["mask_values"] = torch.as_tensor(np.asarray(sample.object_indices) + 1, dtype=torch.int64)
     return targets
 
 
@@ -356,16 +347,13 @@ def drop_degenerate_objects(targets: dict[str, torch.Tensor], min_size: float = 
         return targets
     new_index = torch.cumsum(keep.to(torch.int64), 0) - 1
     grasp_keep = keep[targets["grasp_objects"]] if len(targets["grasp_objects"]) else keep[:0]
-    kept = {
+    return {
         "boxes": boxes[keep],
         "labels": targets["labels"][keep],
         "grasps": targets["grasps"][grasp_keep],
         "grasp_objects": new_index[targets["grasp_objects"][grasp_keep]],
         "grasp_tasks": targets["grasp_tasks"][grasp_keep],
     }
-    if "mask_values" in targets:
-        kept |= {"instance_mask": targets["instance_mask"], "mask_values": targets["mask_values"][keep]}
-    return kept
 
 
 class SamplesDataset(Dataset):
@@ -391,9 +379,6 @@ class SamplesDataset(Dataset):
         Scale range ``[1 - scale_jitter, 1]`` when augmenting.
     depth_reference : {"table", "median"}
         What the input height is measured from (``DEPTH_REFERENCES``).
-    instance_masks : bool
-        Also give each item's instance mask in the network frame
-        (``sample_targets``), which only the grasp head's object map needs.
 
     Raises
     ------
@@ -412,7 +397,6 @@ class SamplesDataset(Dataset):
         max_samples: int | None = None,
         scale_jitter: float = DEFAULT_SCALE_JITTER,
         depth_reference: str = "table",
-        instance_masks: bool = False,
     ) -> None:
         self.data_dir = data_dir if is_uri(data_dir) else Path(data_dir)
         self.pipeline = pipeline
@@ -422,7 +406,6 @@ class SamplesDataset(Dataset):
         self.seed = seed
         self.scale_jitter = scale_jitter
         self.depth_reference = depth_reference
-        self.instance_masks = instance_masks
         self.epoch = 0
         self.shards = sample_shards(self.data_dir, pipeline)
         #: The categories and tasks the shards were labelled with (``osgd.contract.taxonomy.VOCABULARY``).
@@ -475,12 +458,10 @@ class SamplesDataset(Dataset):
         else:
             augmentation = Augmentation()
         height = normalise_depth(sample.depth, self.depth_reference)
-        planes = [height, sample.mask] if self.instance_masks else [height]
-        images, boxes, rectangles = augment(planes, sample.boxes, sample.grasp_rectangles, augmentation, base_scale,
-                                            (cv2.INTER_LINEAR, cv2.INTER_NEAREST))
+        images, boxes, rectangles = augment([height], sample.boxes, sample.grasp_rectangles, augmentation, base_scale,
+                                            (cv2.INTER_LINEAR,))
         image = torch.from_numpy(np.ascontiguousarray(images[0]))[None]
-        mask = images[1] if self.instance_masks else None
-        targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles, mask))
+        targets = drop_degenerate_objects(sample_targets(sample, boxes, rectangles))
         return image, targets, sample.sample_id
 
 

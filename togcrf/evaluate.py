@@ -25,8 +25,8 @@ import logging
 import math
 import shlex
 import sys
-import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
+from itertools import islice
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -34,10 +34,12 @@ import numpy as np
 import torch
 import typer
 
+from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
-from togcrf.metrics import PROTOCOLS, TOP_K, Detections, GroundTruth, TableTwoEvaluator, measure_speed
+from togcrf.engine import evaluate_model, resolve_device
+from togcrf.metrics import PROTOCOLS
 from togcrf.model import PAPER_NAMES
-from togcrf.tta import check_view_count, view_averaged_output, views_label
+from togcrf.tta import check_view_count, views_label
 
 log = logging.getLogger(__name__)
 
@@ -46,162 +48,6 @@ TABLE_COLUMNS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10", "fps
 
 #: Name of the evaluation file a run dir holds.
 EVAL_FILE = "eval.json"
-
-
-def prediction_to_numpy(output: dict[str, torch.Tensor], scale: float) -> Detections:
-    """One image's model output (the contract's eval format) in the sample's pixel frame.
-
-    Parameters
-    ----------
-    output : dict of tensors
-        ``boxes`` (N, 4), ``labels`` (N,) category index + 1, ``scores``
-        (N,), ``grasps`` (N, K, 5), ``grasp_stability`` (N, K),
-        ``grasp_task_probs`` (N, K, 12), all in network-input pixels.
-    scale : float
-        The factor :func:`togcrf.data.depth_to_tensor` applied to the image.
-
-    Returns
-    -------
-    Detections
-        Boxes and grasp centres and sizes divided by ``scale``; angles kept.
-    """
-    def array(name: str) -> np.ndarray:
-        return output[name].detach().to("cpu", torch.float64).numpy()
-
-    boxes = array("boxes").reshape(-1, 4) / scale
-    count = len(boxes)
-    # The model's own (N, K, ...) shapes, so that N = 0 (nothing detected)
-    # keeps K and the task count instead of leaving -1 to infer from nothing.
-    grasps = array("grasps").reshape(count, *output["grasps"].shape[1:2] or (0,), 5).copy()
-    grasps[..., :4] /= scale
-    task_probs = array("grasp_task_probs")
-    return Detections(
-        boxes=boxes,
-        categories=output["labels"].detach().cpu().numpy().astype(np.int64).reshape(-1) - 1,
-        scores=array("scores").reshape(-1),
-        grasps=grasps,
-        grasp_stability=array("grasp_stability").reshape(count, grasps.shape[1]),
-        grasp_task_probs=task_probs.reshape(count, grasps.shape[1], task_probs.shape[-1] if task_probs.ndim else 0),
-    )
-
-
-def run_model(model: torch.nn.Module, image: torch.Tensor, scale: float, views: int = 1) -> Detections:
-    """Detections of a model (eval mode) on one ``(1, H, W)`` image tensor, in sample pixels.
-
-    ``views`` > 1 averages the grasp candidates over that many test-time views (:mod:`togcrf.tta`).
-    """
-    with torch.inference_mode():
-        output = view_averaged_output(model, image, views)
-    return prediction_to_numpy(output, scale)
-
-
-def evaluate_model(
-    model: torch.nn.Module,
-    samples: Iterable[Any],
-    image_size: int | None,
-    *,
-    device: str = "cpu",
-    speed_images: int = 10,
-    unmatched_task: str = "nearest",
-    protocol: str = "ours",
-    depth_reference: str = "table",
-    views: int = 1,
-) -> dict[str, Any]:
-    """Table II metrics and speed of a model on samples.
-
-    Parameters
-    ----------
-    model : torch.nn.Module
-        In eval mode, on ``device``.
-    samples : iterable of ``osgd.contract.samples.Sample``
-    image_size : int or None
-        Passed to :func:`togcrf.data.depth_to_tensor` (the training config's).
-    device : str
-    speed_images : int
-        How many of the first images are kept for the speed measurement
-        (after the metrics pass, so the model is warm; 0 skips it).
-    unmatched_task : {"nearest", "wrong"}
-        See :mod:`togcrf.metrics` (Acc-T).
-    protocol : {"ours", "lab"}
-        The rules of mAP and mAP-G (:mod:`togcrf.metrics`, Protocols).
-    depth_reference : {"table", "median"}
-        Passed to :func:`togcrf.data.depth_to_tensor` (the training config's).
-    views : int
-        Test-time views averaged per image (:mod:`togcrf.tta`, ``VIEW_COUNTS``); 1: the image as given.
-        The speed is measured with the same views.
-
-    Returns
-    -------
-    dict
-        ``metrics`` (with its ``protocol``) and ``speed`` (None when skipped).
-
-    Raises
-    ------
-    ValueError
-        If there are no samples, the protocol is unknown, or the views are not allowed for the model.
-    """
-    from togcrf.data import depth_to_tensor  # noqa: PLC0415
-
-    evaluator = TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task, protocol=protocol)
-    kept_images: list[torch.Tensor] = []
-    model.eval()
-    for sample in samples:
-        image, scale = depth_to_tensor(sample.depth, image_size, depth_reference)
-        image = image.to(device)
-        evaluator.add(run_model(model, image, scale, views), GroundTruth.from_sample(sample))
-        if len(kept_images) < speed_images:
-            kept_images.append(image)
-    if evaluator.images == 0:
-        raise ValueError("no samples to evaluate")
-    speed = None
-    if kept_images:
-        def run_once(image: torch.Tensor) -> None:
-            with torch.inference_mode():
-                view_averaged_output(model, image, views)
-
-        speed = dict(measure_speed(run_once, kept_images, warmup=min(2, len(kept_images)), device=device))
-        speed.update(crf_time_share(model, run_once, kept_images, device))
-    return {"metrics": evaluator.result(), "speed": speed}
-
-
-def crf_time_share(model: torch.nn.Module, run_once: Any, inputs: list[torch.Tensor], device: str) -> dict[str, float]:
-    """Seconds per image spent in the model's CRF, and their share of the whole (paper V-B discusses its cost).
-
-    A second pass over ``inputs`` with a timer around every
-    :class:`togcrf.crf.MeanFieldCrf` forward (CUDA synchronised at both
-    ends, so this pass runs a little slower than the speed pass). Models
-    without a CRF give ``{}``.
-    """
-    from togcrf.crf import MeanFieldCrf  # noqa: PLC0415
-
-    modules = [module for module in model.modules() if isinstance(module, MeanFieldCrf)]
-    if not modules:
-        return {}
-    synchronise = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
-    spent = [0.0]
-    started: list[float] = []
-
-    def before(*_: Any) -> None:
-        synchronise()
-        started.append(time.perf_counter())
-
-    def after(*_: Any) -> None:
-        synchronise()
-        spent[0] += time.perf_counter() - started.pop()
-
-    handles = [hook for module in modules
-               for hook in (module.register_forward_pre_hook(before), module.register_forward_hook(after))]
-    try:
-        synchronise()
-        start = time.perf_counter()
-        for image in inputs:
-            run_once(image)
-        synchronise()
-        total = time.perf_counter() - start
-    finally:
-        for handle in handles:
-            handle.remove()
-    return {"crf_seconds_per_image": spent[0] / len(inputs), "crf_share": spent[0] / total if total > 0 else 0.0}
 
 
 def table_row(result: dict[str, Any]) -> dict[str, float | None]:
@@ -267,9 +113,6 @@ def evaluate_checkpoint(
     ValueError
         If the split has no samples, or the protocol is unknown.
     """
-    from itertools import islice  # noqa: PLC0415
-
-    from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary  # noqa: PLC0415
 
     if protocol not in PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}: expected one of {', '.join(PROTOCOLS)}")
@@ -334,7 +177,7 @@ def run_seed(path: Path) -> int | None:
     """The training seed of an evaluation: ``seed`` of the run's config beside it (None if there is none).
 
     The config is ``config.json`` in the run dir, or, for an evaluation committed as ``MODEL-eval.json``
-    or ``MODEL-eval-lab.json`` (the files under lab/results/), ``MODEL-config.json`` beside it.
+    or ``MODEL-eval-lab.json`` (as the model zoo in docs/zoo/ keeps them), ``MODEL-config.json`` beside it.
 
     Parameters
     ----------
@@ -486,16 +329,10 @@ def eval_command(
                                             "(togcrf.tta); slower, and fps is measured with them.")] = 1,
 ) -> None:
     """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON."""
-    try:
-        from togcrf.train import resolve_device  # noqa: PLC0415
-
-        document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split,
-                                       device=str(resolve_device(device)),
-                                       max_samples=max_samples, speed_images=speed_images,
-                                       unmatched_task=unmatched_task, protocol=protocol, views=views)
-    except (FileNotFoundError, ValueError, KeyError) as error:
-        typer.echo(f"error: {error}", err=True)
-        raise typer.Exit(1) from error
+    document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split,
+                                   device=str(resolve_device(device)),
+                                   max_samples=max_samples, speed_images=speed_images,
+                                   unmatched_task=unmatched_task, protocol=protocol, views=views)
     path = out if out is not None else Path(checkpoint).parent / EVAL_FILE
     write_json(path, {**document, "command": command_line()})
     typer.echo(format_table([(row_name(document), document["row"])], protocol=document_protocol(document)))
@@ -514,11 +351,7 @@ def table_command(
                                                       "with the sample standard deviation beneath.")] = False,
 ) -> None:
     """Print Table II for several evaluated runs side by side, headed by the protocol that made it."""
-    try:
-        documents = [read_evaluation(path) for path in run_dirs]
-    except (FileNotFoundError, ValueError) as error:
-        typer.echo(f"error: {error}", err=True)
-        raise typer.Exit(1) from error
+    documents = [read_evaluation(path) for path in run_dirs]
     protocols = [document_protocol(document) for document in documents]
     if len(set(protocols)) > 1 and not (mixed and not mean):
         listing = "; ".join(f"{path}: {protocol}" for path, protocol in zip(run_dirs, protocols, strict=True))

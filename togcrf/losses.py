@@ -3,17 +3,10 @@
 - stability: 2-way cross entropy over the candidates of the foreground RoIs,
   with all positives and the hardest negatives, 3 negatives per positive
   (hard negative mining as ROI-GD); optionally plus a top-1 ranking term
-  (``ModelOptions.grasp_ranking_weight``, :func:`top1_ranking_loss`);
-- regression: smooth L1 on the encoded rectangles of positive candidates
-  (or of every candidate near a grasp, ``ModelOptions.grasp_regression_radius``);
+  (``loss.ranking_weight`` of ``togcrf.model.options``, :func:`top1_ranking_loss`);
+- regression: smooth L1 on the encoded rectangles of positive candidates;
 - task: cross entropy of the positive candidates' task targets against the
-  log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG);
-- object map (``ModelOptions.grasp_object_map``; zero without it): binary
-  cross entropy of each RoI cell's "on the RoI's own object" logit against
-  the share of the cell that the object's instance mask covers;
-- confidence (``ModelOptions.grasp_confidence``; zero without it): binary
-  cross entropy of each RoI's "my top-1 candidate is right" logit against
-  whether it is (``togcrf.model.top_grasp_right``).
+  log marginals ``log Q`` of the CRF (log-softmax of the task logits for TOG).
 
 The RPN and RCNN losses are torchvision's (``togcrf.model``). ``LOSS_KEYS``
 are the names of the losses every model returns in train mode, defined here
@@ -31,14 +24,13 @@ DEFAULT_NEGATIVE_RATIO = 3
 #: The losses of a model in train mode, in the order of the columns of metrics.csv (``togcrf.train``): RPN
 #: objectness and box, RCNN class and box, then the grasp branch's (``GRASP_LOSS_KEYS``).
 LOSS_KEYS = ("rpn_objectness", "rpn_box", "rcnn_class", "rcnn_box", "grasp_stability", "grasp_regression",
-             "grasp_task", "grasp_object_map", "grasp_confidence")
+             "grasp_task")
 
 #: The losses of :func:`grasp_losses`: stability, regression, task.
 GRASP_LOSS_KEYS = LOSS_KEYS[4:7]
 
 
-def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int,
-                            ignored: torch.Tensor | None = None) -> torch.Tensor:
+def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio: int) -> torch.Tensor:
     """Positives plus, per row, the ``ratio * positives`` negatives of highest loss.
 
     A row without positives keeps its ``ratio`` hardest negatives, so that RoIs
@@ -50,20 +42,17 @@ def hard_negative_selection(losses: torch.Tensor, positive: torch.Tensor, ratio:
         Per-candidate loss.
     positive : (R, K) bool
     ratio : int
-    ignored : (R, K) bool, optional
-        Candidates that may not be negatives (``togcrf.anchors.near_ground_truth``).
 
     Returns
     -------
     (R, K) bool
         Candidates that enter the loss.
     """
-    excluded = positive if ignored is None else positive | ignored
-    negative_losses = losses.detach().masked_fill(excluded, float("-inf"))
+    negative_losses = losses.detach().masked_fill(positive, float("-inf"))
     order = negative_losses.argsort(dim=1, descending=True)
     rank = order.argsort(dim=1)
     negatives_wanted = (positive.sum(dim=1) * ratio).clamp(min=ratio)
-    hard_negatives = (rank < negatives_wanted[:, None]) & ~excluded
+    hard_negatives = (rank < negatives_wanted[:, None]) & ~positive
     return positive | hard_negatives
 
 
@@ -75,8 +64,8 @@ def top1_ranking_loss(stability_logits: torch.Tensor, positive: torch.Tensor) ->
     over the RoI's margins against the set of its positives,
     ``logsumexp(all margins) - logsumexp(positive margins)``, averaged over the
     RoIs that have a positive. It is zero only when the positives outrank every
-    negative by far, which is what mAP-G asks of the top-1 grasp. Our addition
-    (issue #15); the paper trains the stability with the cross entropy alone.
+    negative by far, which is what mAP-G asks of the top-1 grasp. The paper
+    trains the stability with the cross entropy alone; this term is ours.
 
     Parameters
     ----------
@@ -105,10 +94,7 @@ def grasp_losses(
     regression_targets: torch.Tensor,
     task_targets: torch.Tensor,
     negative_ratio: int = DEFAULT_NEGATIVE_RATIO,
-    ignored: torch.Tensor | None = None,
     ranking_weight: float = 0.0,
-    regressed: torch.Tensor | None = None,
-    ranked: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """The three grasp losses over a batch of RoIs.
 
@@ -125,14 +111,8 @@ def grasp_losses(
     task_targets : (R, K, T) float
         Soft task labels of the positives (rows sum to 1).
     negative_ratio : int
-    ignored : (R, K) bool, optional
-        Candidates kept out of the hard negatives (near a ground-truth grasp).
     ranking_weight : float
         Weight of :func:`top1_ranking_loss`, added to the stability loss (0: the paper's loss).
-    regressed : (R, K) bool, optional
-        Candidates whose regression is trained, with ``regression_targets`` for each (None: the positives).
-    ranked : (R, K) bool, optional
-        Candidates the ranking term puts first (None: the positives).
 
     Returns
     -------
@@ -146,36 +126,17 @@ def grasp_losses(
     per_candidate = functional.cross_entropy(
         stability_logits.reshape(-1, 2).float(), labels.reshape(-1), reduction="none"
     ).reshape(labels.shape)
-    selected = hard_negative_selection(per_candidate, positive, negative_ratio, ignored)
+    selected = hard_negative_selection(per_candidate, positive, negative_ratio)
     stability = (per_candidate * selected).sum() / selected.sum().clamp(min=1)
     if ranking_weight:
-        ranked = positive if ranked is None else ranked
-        stability = stability + ranking_weight * top1_ranking_loss(stability_logits, ranked)
+        stability = stability + ranking_weight * top1_ranking_loss(stability_logits, positive)
     positives = positive.sum().clamp(min=1)
-    regressed = positive if regressed is None else regressed
     regression_loss = functional.smooth_l1_loss(
-        regression[regressed].float(), regression_targets[regressed].float(), reduction="sum", beta=1.0
-    ) / regressed.sum().clamp(min=1)
+        regression[positive].float(), regression_targets[positive].float(), reduction="sum", beta=1.0
+    ) / positives
     task_per_candidate = -(task_targets * task_log_probs.float()).sum(dim=-1)
     task = (task_per_candidate * positive).sum() / positives
     return dict(zip(GRASP_LOSS_KEYS, (stability, regression_loss, task), strict=True))
-
-
-def binary_loss(logits: torch.Tensor | None, targets: torch.Tensor | None, reference: torch.Tensor) -> torch.Tensor:
-    """Binary cross entropy of an optional output (the object map's cells, the top-1 confidence); zero without it.
-
-    Parameters
-    ----------
-    logits, targets : (R, ...) float or None
-        Targets in [0, 1]. None: the model has no such output.
-    reference : tensor
-        Any output of the step: the zero of a model without the output is made on its device.
-    """
-    if logits is None or targets is None:
-        return reference.new_zeros((), dtype=torch.float32)
-    if logits.numel() == 0:
-        return logits.float().sum() * 0  # no RoI: a zero that keeps the output's parameters in the graph
-    return functional.binary_cross_entropy_with_logits(logits.float(), targets.float())
 
 
 def top1_task_hits(

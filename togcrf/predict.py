@@ -26,12 +26,18 @@ import cv2
 import numpy as np
 import torch
 import typer
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Rectangle
 
 from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
 from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_COLOURS, TASK_INDEX, TASKS
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
-from togcrf.evaluate import run_model, write_json
-from togcrf.metrics import Detections, rectangle_corners
+from togcrf.data import depth_to_tensor
+from togcrf.engine import run_model
+from togcrf.evaluate import write_json
+from togcrf.geometry import rectangle_corners
+from togcrf.metrics import Detections
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +46,18 @@ TASKS_NEEDING_CATEGORY = ("no task", "hand over")
 
 #: Grasps drawn per object, as in figure 7 (top-5 stable grasps).
 DRAWN_GRASPS = 5
+
+
+#: Smallest depth image side the detector takes, pixels (its coarsest feature map has a stride of 32).
+MIN_DEPTH_SIDE = 32
+
+
+def _checked_size(path: Path, depth: np.ndarray) -> np.ndarray:
+    """``depth``, if both its sides are at least ``MIN_DEPTH_SIDE`` pixels."""
+    if min(depth.shape) < MIN_DEPTH_SIDE:
+        raise ValueError(f"{path}: a depth image of {depth.shape[1]} x {depth.shape[0]} px; expected at least "
+                         f"{MIN_DEPTH_SIDE} x {MIN_DEPTH_SIDE}")
+    return depth
 
 
 def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None = None
@@ -77,15 +95,18 @@ def load_depth(source: str, data_dir: Path | None = None, pipeline: str | None =
         if image is None or image.dtype != np.uint16 or image.ndim != 2:
             found = "unreadable" if image is None else f"{image.dtype} with shape {image.shape}"
             raise ValueError(f"{path}: expected a single-channel 16-bit PNG of depth in millimetres, got {found}")
-        return image.astype(np.float32) / 1000.0, None
+        return _checked_size(path, image.astype(np.float32) / 1000.0), None
     if suffix == ".npy":
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such depth array")
-        depth = np.load(path, allow_pickle=False)
+        try:
+            depth = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as error:
+            raise ValueError(f"{path}: not a numpy array of depth in metres ({error})") from error
         if depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
             raise ValueError(f"{path}: expected a 2-D float array of depth in metres, got {depth.dtype} "
                              f"with shape {depth.shape}")
-        return np.nan_to_num(depth.astype(np.float32), nan=0.0), None
+        return _checked_size(path, np.nan_to_num(depth.astype(np.float32), nan=0.0)), None
     if data_dir is None:
         raise ValueError(f"{source!r} is neither a .png nor a .npy file; to name a sample id, give --data")
 
@@ -102,7 +123,6 @@ def predict_depth(model: torch.nn.Module, depth: np.ndarray, image_size: int | N
     ``image_size`` and ``depth_reference`` are the training config's (:func:`togcrf.data.depth_to_tensor`);
     ``views`` > 1 averages the grasp candidates over test-time views (:mod:`togcrf.tta`).
     """
-    from togcrf.data import depth_to_tensor  # noqa: PLC0415
 
     image, scale = depth_to_tensor(depth, image_size, depth_reference)
     model.eval()
@@ -224,15 +244,10 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     finger sides thick. A ``chosen`` grasp (from :func:`best_grasp_for_task`)
     is drawn on top, larger and outlined.
     """
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.lines import Line2D  # noqa: PLC0415
-
     colours = task_colours()
     height, width = depth.shape
-    figure, axes = plt.subplots(figsize=(8, 8 * height / width + 0.8), dpi=100)
+    figure = Figure(figsize=(8, 8 * height / width + 0.8), dpi=100)
+    axes = figure.subplots()
     valid = depth > 0
     shown = np.where(valid, depth, np.nan)
     low, high = (np.percentile(depth[valid], [1, 99]) if valid.any() else (0.0, 1.0))
@@ -250,7 +265,7 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
 
     for index in range(len(detections.scores)):
         x1, y1, x2, y2 = detections.boxes[index]
-        axes.add_patch(plt.Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor="yellow", linewidth=1.2))
+        axes.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor="yellow", linewidth=1.2))
         axes.text(x1, y1 - 2, f"{CATEGORIES[int(detections.categories[index])]} {detections.scores[index]:.2f}",
                   color="black", fontsize=8, backgroundcolor="yellow")
         order = np.argsort(-detections.grasp_stability[index], kind="stable")[:grasps_per_object]
@@ -280,7 +295,6 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path)
-    plt.close(figure)
 
 
 def predict_command(
@@ -303,20 +317,16 @@ def predict_command(
 ) -> None:
     """Detect objects and task-oriented grasps on one depth image; JSON out, optional picture."""
 
-    try:
-        depth, sample = load_depth(source, data, pipeline)
-        if not Path(checkpoint).is_file():
-            raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
-        model, config = load_checkpoint(checkpoint, device=device)
-        if sample is not None:
-            check_vocabulary(config["vocabulary"], samples_vocabulary(sample_shards(data, pipeline)),
-                             str(checkpoint), f"{data}/samples")
-        detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device,
-                                                     config["depth_reference"], views), min_score)
-        chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
-    except (FileNotFoundError, ValueError, KeyError) as error:
-        typer.echo(f"error: {error}", err=True)
-        raise typer.Exit(1) from error
+    depth, sample = load_depth(source, data, pipeline)
+    if not Path(checkpoint).is_file():
+        raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
+    model, config = load_checkpoint(checkpoint, device=device)
+    if sample is not None:
+        check_vocabulary(config["vocabulary"], samples_vocabulary(sample_shards(data, pipeline)),
+                         str(checkpoint), f"{data}/samples")
+    detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device,
+                                                 config["depth_reference"], views), min_score)
+    chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
     document = {"input": source, "model": config.get("model"), "checkpoint": str(checkpoint),
                 "height": int(depth.shape[0]), "width": int(depth.shape[1]), "min_score": min_score,
                 "test_time_views": views,

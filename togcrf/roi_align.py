@@ -4,10 +4,8 @@ torchvision's RoIAlign (Mask R-CNN's bilinear pooling, He et al. 2017) has a
 fast CPU forward: it computes each RoI's bilinear sampling weights once and
 reuses them for every channel. Its CPU backward does not: it recomputes the
 weights for every channel and scatters into the ``(N, C, H, W)`` gradient one
-element at a time, on one thread. In the CPU recipe's training step that
-backward took 19 % of the step on 2 threads (issue #15; torch.profiler over
-4 steps of the recipe on a 2-core EPYC: 166 ms of 890 ms a step), six times
-its forward.
+element at a time, on one thread: in a CPU training step of a small
+detector it costs several times the forward pass.
 
 The pooling is linear in the features: with the feature map as a
 ``(N * H * W, C)`` matrix ``F`` (one row per pixel) and the output as a

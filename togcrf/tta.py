@@ -16,9 +16,8 @@ task probabilities change.
 It is test-time augmentation as detection toolkits offer it (e.g.
 MMDetection's ``TestTimeAugmentation`` of flips); here it is applied to the
 grasp head only. Each view costs one more backbone and grasp-head pass:
-eight views take about 4.8 times the time of one on the CPU (the RPN and
-the box branch run once). Measured on the 60-minute recipe in
-docs/togcrf-evaluation.md ("Test-time views").
+eight views take about five times the time of one (the RPN and the box
+branch run once).
 """
 
 from __future__ import annotations
@@ -67,9 +66,8 @@ def view_boxes(boxes: torch.Tensor, shape: tuple[int, int], view: Augmentation) 
     A box's edges lie on the (H + 1) x (W + 1) lattice of pixel corners, the
     frame RoIAlign samples in: a mirror maps an edge ``x`` to ``W - x``
     (a pixel centre ``x`` goes to ``W - 1 - x``, :func:`togcrf.data.transform_points`).
-    Carried as pixel centres instead, the boxes sit 1 px off in the mirrored
-    views, and 8 views read 1.1-1.4 points less mAP-G on the recipe's
-    checkpoints (docs/togcrf-evaluation.md, "Test-time views").
+    Carried as pixel centres instead, the boxes would sit 1 px off in the
+    mirrored views.
     """
     height, width = shape
     corners = torch.cat([boxes[:, :2], boxes[:, 2:]]).double().cpu().numpy()
@@ -99,18 +97,16 @@ def candidate_permutation(view: Augmentation, grid: int = GRID) -> torch.Tensor:
     return torch.from_numpy((cell[:, None] * len(angles) + anchor[None, :]).ravel())
 
 
-def view_grasps(model: torch.nn.Module, image: torch.Tensor, boxes: torch.Tensor, labels: torch.Tensor,
-                view: Augmentation) -> tuple[torch.Tensor, torch.Tensor]:
+def view_grasps(model: torch.nn.Module, image: torch.Tensor, boxes: torch.Tensor, view: Augmentation,
+                ) -> tuple[torch.Tensor, torch.Tensor]:
     """P(stable) ``(N, K)`` and task probabilities ``(N, K, T)`` (K = 196 on 7 x 7 cells) of ``(N, 4)`` boxes
-    with their ``(N,)`` labels (the detector's, category index + 1) seen in one view, in the candidate order of
-    the image as given."""
+    seen in one view, in the candidate order of the image as given."""
     seen = view_image(image, view)
     images = batch_images([seen])
     features = model.backbone(images.tensors)
-    outputs = model.grasp_outputs(features, [view_boxes(boxes, tuple(image.shape[-2:]), view)], images.image_sizes,
-                                  [labels])
-    order = candidate_permutation(view, model.options.grasp_grid).to(boxes.device)
-    stable = stable_probability(outputs.stability, outputs.object_map)
+    outputs = model.grasp_outputs(features, [view_boxes(boxes, tuple(image.shape[-2:]), view)], images.image_sizes)
+    order = candidate_permutation(view).to(boxes.device)
+    stable = stable_probability(outputs.stability)
     return stable[:, order], outputs.task_log_probs.exp()[:, order]
 
 
@@ -140,6 +136,6 @@ def view_averaged_output(model: torch.nn.Module, image: torch.Tensor, views: int
         return output
     stable, tasks = output["grasp_stability"].double(), output["grasp_task_probs"].double()
     for view in VIEWS[1:views]:
-        view_stable, view_tasks = view_grasps(model, image, output["boxes"], output["labels"], view)
+        view_stable, view_tasks = view_grasps(model, image, output["boxes"], view)
         stable, tasks = stable + view_stable.double(), tasks + view_tasks.double()
     return {**output, "grasp_stability": (stable / views).float(), "grasp_task_probs": (tasks / views).float()}

@@ -2,7 +2,7 @@
 
 Two experiments with closed-form answers measure the pad contact of
 :mod:`osgd.checks.hand` (``tests/test_checks_physics.py`` asserts them,
-``benchmarks/validate_checks.py --physics`` prints them for both pad models):
+``python -m osgd.checks.validate --physics`` prints them for both pad models):
 
 - **Coulomb slip.** A box held between the pads by its middle, lifted slowly
   and held: it stays when ``2 * mu * F >= m * g`` and slips otherwise. The

@@ -10,13 +10,17 @@ way the task needs. ``togcrf robot-eval`` runs the protocol
 
 Modules: :mod:`~togcrf.robot.protocol` (trials, piles' seeds),
 :mod:`~togcrf.robot.world` (the pipeline's tools, grasps and stages'
-parameters), :mod:`~togcrf.robot.pile` (piles and their depth images),
+parameters), :mod:`~togcrf.robot.observation` (what the robot sees of a pile),
+:mod:`~togcrf.robot.pile` (piles, their depth images, feasible piles),
 :mod:`~togcrf.robot.policies` (oracle, random, checkpoints),
-:mod:`~togcrf.robot.execute` (rectangle to grasp, simulation, judgement),
+:mod:`~togcrf.robot.lifting` (rectangle to top-down grasp),
+:mod:`~togcrf.robot.execute` (simulation, judgement),
 :mod:`~togcrf.robot.report` (trial log, Table III),
 :mod:`~togcrf.robot.pictures` (failure pictures), :mod:`~togcrf.robot.run`
 (the loop), :mod:`~togcrf.robot.cli` (the commands).
 
-Unlike the rest of ``togcrf`` this needs the generator's physics and
-rendering (pybullet, trimesh, embreex): it imports them only when run.
+Unlike the rest of ``togcrf``, which reads the generator's data through
+:mod:`osgd.contract` only, this runs the generator's physics and rendering
+(pybullet, trimesh, embreex), through :mod:`osgd.simulation` only; the
+commands of :mod:`~togcrf.robot.cli` import it when they run.
 """

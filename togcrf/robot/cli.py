@@ -15,6 +15,11 @@ from typing import Annotated, Any
 
 import typer
 
+from togcrf.evaluate import command_line, write_json
+from togcrf.robot.protocol import TABLE_TASKS, check_fresh, protocol_trials
+from togcrf.robot.report import format_table3, policy_tables, read_logs, reason_counts, timing_summary, write_log
+from togcrf.tta import check_view_count
+
 log = logging.getLogger(__name__)
 
 
@@ -33,8 +38,6 @@ def _policies(checkpoints: list[Path], baselines: str) -> tuple[str, ...]:
 
 
 def _tasks(text: str | None) -> tuple[str, ...]:
-    from togcrf.robot.protocol import TABLE_TASKS  # noqa: PLC0415
-
     if text is None:
         return TABLE_TASKS
     tasks = tuple(name.strip() for name in text.split(",") if name.strip())
@@ -52,10 +55,6 @@ def print_progress(row: dict[str, Any]) -> None:
 
 def write_results(out: Path, rows: list[dict[str, Any]], extra: dict[str, Any]) -> str:
     """Write the trial log, ``table3.md`` and ``table3.json``; return Table III as text."""
-    from togcrf.evaluate import write_json  # noqa: PLC0415
-    from togcrf.robot.report import format_table3, policy_tables, reason_counts, write_log  # noqa: PLC0415
-    from togcrf.robot.run import timing_summary  # noqa: PLC0415
-
     write_log(rows, out / "trials.parquet")
     tables = policy_tables(rows)
     text = format_table3(tables)
@@ -89,38 +88,27 @@ def robot_eval_command(
         "--set", "-s", help="Override a config value: section.key=value.")] = None,
 ) -> None:
     """Table III (GSR-S, GSR-T) in simulation: the paper's robot protocol on fresh piles, per checkpoint."""
-    from osgd.config import ConfigError  # noqa: PLC0415
-    from osgd.contract.shards import ShardError  # noqa: PLC0415
-    from osgd.pipeline import load_pipeline  # noqa: PLC0415
-    from togcrf.evaluate import command_line  # noqa: PLC0415
-    from togcrf.robot.protocol import check_fresh, protocol_trials  # noqa: PLC0415
-    from togcrf.robot.run import RunSpec, run_protocol  # noqa: PLC0415
-    from togcrf.robot.world import load_world, stored_scene_seeds  # noqa: PLC0415
-    from togcrf.tta import check_view_count  # noqa: PLC0415
+    # The generator's simulation (osgd.simulation: trimesh and embreex on import, pybullet on first use) loads
+    # for this command only, not with `togcrf --help`: togcrf.cli imports this module.
+    from osgd.simulation import load_pipeline  # noqa: PLC0415 - optional dependency: simulation
+    from togcrf.robot.run import RunSpec, run_protocol  # noqa: PLC0415 - optional dependency: simulation
+    from togcrf.robot.world import load_world, stored_scene_seeds  # noqa: PLC0415 - optional dependency: simulation
 
     started = time.perf_counter()
     overrides = tuple(set_values or ())
-    try:
-        policies = _policies(list(checkpoints or []), baselines)
-        check_view_count(views)
-        chosen_tasks = _tasks(tasks)
-        pipeline = load_pipeline(config, overrides)
-        check_fresh(pipeline.params["scenes"].count, (), ())
-        world = load_world(data, pipeline)
-        trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks)
-    except (ConfigError, FileNotFoundError, ValueError, ShardError) as error:
-        typer.echo(f"error: {error}", err=True)
-        raise typer.Exit(1) from error
+    policies = _policies(list(checkpoints or []), baselines)
+    check_view_count(views)
+    chosen_tasks = _tasks(tasks)
+    pipeline = load_pipeline(config, overrides)
+    check_fresh(pipeline.params["scenes"].count, (), ())
+    world = load_world(data, pipeline)
+    trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks)
     spec = RunSpec(config, overrides, data, policies, out, min_score=min_score, min_stability=min_stability,
                    views=views, pictures=pictures, require_clear=not any_pile)
     typer.echo(f"{len(trials)} trials x {len(policies)} policies, {workers} process(es); writing to {out}")
 
     rows = run_protocol(spec, trials, workers, world if workers <= 1 else None, print_progress)
-    try:
-        check_fresh(pipeline.params["scenes"].count, (row["pile_seed"] for row in rows), stored_scene_seeds(data))
-    except ValueError as error:
-        typer.echo(f"error: {error}", err=True)
-        raise typer.Exit(1) from error
+    check_fresh(pipeline.params["scenes"].count, (row["pile_seed"] for row in rows), stored_scene_seeds(data))
     text = write_results(out, rows, {"command": command_line(), "config": str(config), "overrides": list(overrides),
                                      "policies": list(policies), "views": views, "trials": len(trials),
                                      "workers": workers,
@@ -134,16 +122,8 @@ def robot_table_command(
     out: Annotated[Path | None, typer.Option(help="Also write table3.md and table3.json into this folder.")] = None,
 ) -> None:
     """Table III from one or more trial logs, side by side with the paper's."""
-    from togcrf.robot.report import format_table3, policy_tables, read_logs  # noqa: PLC0415
-
-    try:
-        rows = read_logs(logs)
-    except (FileNotFoundError, ValueError) as error:
-        typer.echo(f"error: {error}", err=True)
-        raise typer.Exit(1) from error
+    rows = read_logs(logs)
     if out is not None:
-        from togcrf.evaluate import command_line  # noqa: PLC0415
-
         out.mkdir(parents=True, exist_ok=True)
         text = write_results(out, rows, {"command": command_line(), "logs": [str(path) for path in logs]})
     else:

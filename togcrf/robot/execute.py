@@ -1,18 +1,7 @@
-"""From a rectangle to a grasp executed among the whole pile, and its judgement.
+"""From a lifted grasp to its execution among the whole pile, and its judgement.
 
-Lifting (:func:`lift_rectangle`)
---------------------------------
-The approach is **top-down along the table normal** (world ``-z``), the
-usual pick of a planar grasp detector over a workbench; the camera leans at
-most ``max_tilt`` (10 degrees) from it. The rectangle's centre is
-back-projected with the median depth reading within ``surface_radius``
-pixels of it: the surface the camera sees there. Its two jaw ends are
-back-projected at that depth; the closing axis is the horizontal part of
-the line between them and the pre-grasp opening their distance (the
-rectangle's ``h`` is the annotated pre-grasp opening, docs/samples.md)
-plus ``extra_opening``, clipped to the gripper's maximum. The fingertips
-are sent ``grasp_depth`` below the seen surface, but never lower than
-``tip_clearance`` above the table.
+The grasp is a top-down :class:`~togcrf.robot.lifting.GraspPose` lifted from the chosen rectangle
+(:func:`togcrf.robot.lifting.lift_rectangle`).
 
 Execution (:func:`execute`)
 ---------------------------
@@ -20,8 +9,8 @@ A fresh pybullet world (the checks stage's physics settings: time step,
 solver iterations, contact ERP) holds the stack stage's floor and walls
 and every object of the pile, dynamic, at its resting pose, with gravity;
 the pile settles for ``settle_time``. The hand is the checks stage's
-simulated gripper (:func:`osgd.checks.hand.create_hand`, from the one
-:data:`osgd.gripper.PANDA`), pre-shaped to the opening above the pile, then:
+simulated gripper (:func:`osgd.simulation.create_hand`, from the one
+:data:`osgd.simulation.PANDA`), pre-shaped to the opening above the pile, then:
 
 1. **approach**: down at ``approach_speed`` to the grasp pose; a guarded
    move: it stops where the contact force on the hand passes
@@ -61,8 +50,19 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from osgd.gripper import Gripper
-from togcrf.robot.pile import Observation, suitable_categories
+from osgd.simulation import (
+    FINGER_A,
+    FINGER_B,
+    add_floor_and_walls,
+    create_hand,
+    create_object_body,
+    get_mesh_pose,
+    physics_client,
+    pybullet_module,
+)
+from togcrf.robot.lifting import GraspPose, RobotParams
+from togcrf.robot.observation import Observation
+from togcrf.robot.pile import suitable_categories
 from togcrf.robot.protocol import Trial
 from togcrf.robot.world import World
 
@@ -77,116 +77,6 @@ _SLIP_RISE = 0.01
 
 #: During the lift and hold, the grip is tested every this many steps.
 _GRIP_CHECK_INTERVAL = 8
-
-
-@dataclass(frozen=True)
-class RobotParams:
-    """How the robot lifts and executes a rectangle; lengths in m, times in s, forces in N.
-
-    The physics (time step, solver, contact ERP, hand masses and forces,
-    closing) is the checks stage's ``[checks]`` section of the pipeline.
-
-    Attributes
-    ----------
-    surface_radius : float
-        Pixels around the rectangle's centre whose median depth is the surface.
-    extra_opening : float
-        Added to the rectangle's opening for the pre-grasp.
-    grasp_depth : float
-        How far below the seen surface the fingertips go.
-    tip_clearance : float
-        The fingertips stay at least this far above the table.
-    settle_time : float
-        The pile settles this long in the execution's world before the hand comes.
-    approach_height : float
-        The approach starts this far above the grasp (and above the pile).
-    approach_speed : float
-    stop_force : float
-        The guarded approach stops when the contact force on the hand passes this.
-    lift_height, lift_duration, hold_duration : float
-    min_rise : float
-        A held object's centre of mass must rise this much.
-    """
-
-    surface_radius: float = 3.0
-    extra_opening: float = 0.02
-    grasp_depth: float = 0.025
-    tip_clearance: float = 0.002
-    settle_time: float = 0.1
-    approach_height: float = 0.10
-    approach_speed: float = 0.15
-    stop_force: float = 30.0
-    lift_height: float = 0.15
-    lift_duration: float = 1.0
-    hold_duration: float = 1.0
-    min_rise: float = 0.05
-
-
-@dataclass(frozen=True)
-class GraspPose:
-    """A top-down grasp in the world.
-
-    Attributes
-    ----------
-    position : (3,) float64
-        Grasp centre (gripper origin, mid-way down the pads), world, m.
-    rotation : (3, 3) float64
-        Gripper frame in the world (columns: closing, across, approach = -z).
-    opening : float
-        Pre-grasp opening, m.
-    surface : (3,) float64
-        The seen surface point under the rectangle's centre, world, m.
-    """
-
-    position: np.ndarray
-    rotation: np.ndarray
-    opening: float
-    surface: np.ndarray
-
-    @property
-    def quaternion(self) -> np.ndarray:
-        """The rotation as (x, y, z, w)."""
-        return Rotation.from_matrix(self.rotation).as_quat()
-
-
-def surface_depth(depth: np.ndarray, x: float, y: float, radius: float) -> float | None:
-    """Median depth reading within ``radius`` px of a pixel; None when there is none."""
-    height, width = depth.shape
-    low_x, high_x = max(0, math.floor(x - radius)), min(width, math.ceil(x + radius) + 1)
-    low_y, high_y = max(0, math.floor(y - radius)), min(height, math.ceil(y + radius) + 1)
-    if low_x >= high_x or low_y >= high_y:
-        return None
-    rows, columns = np.mgrid[low_y:high_y, low_x:high_x]
-    window = depth[low_y:high_y, low_x:high_x]
-    near = ((columns - x) ** 2 + (rows - y) ** 2 <= radius**2) & (window > 0)
-    return float(np.median(window[near])) if near.any() else None
-
-
-def lift_rectangle(rectangle: np.ndarray, observation: Observation, gripper: Gripper,
-                   params: RobotParams) -> GraspPose | None:
-    """The top-down world grasp of a rectangle (see the module text); None without a depth reading."""
-    x, y, h, _, theta = (float(value) for value in rectangle)
-    depth = surface_depth(observation.depth, x, y, params.surface_radius)
-    if depth is None:
-        return None
-    intrinsics, pose = observation.intrinsics, observation.pose
-    along = np.array([math.cos(theta), math.sin(theta)]) * h / 2
-    centre_pixel = np.array([x, y])
-    pixels = np.array([centre_pixel, centre_pixel - along, centre_pixel + along])
-    camera = np.column_stack([(pixels[:, 0] - intrinsics.cx) / intrinsics.fx * depth,
-                              (pixels[:, 1] - intrinsics.cy) / intrinsics.fy * depth, np.full(3, depth)])
-    centre, end_a, end_b = pose.camera_to_world(camera)
-    closing = end_b - end_a
-    closing[2] = 0.0
-    norm = float(np.linalg.norm(closing))
-    closing = closing / norm if norm > 1e-9 else pose.rotation[:, 0] * np.array([1.0, 1.0, 0.0])
-    closing /= np.linalg.norm(closing)
-    approach = np.array([0.0, 0.0, -1.0])
-    rotation = np.column_stack([closing, np.cross(approach, closing), approach])
-    tip = max(centre[2] - params.grasp_depth, params.tip_clearance)
-    position = np.array([centre[0], centre[1], tip + gripper.finger_depth / 2])
-    opening = float(np.clip(np.linalg.norm(end_b - end_a) + params.extra_opening, 0.0, gripper.max_opening))
-    return GraspPose(position, rotation, opening, centre)
 
 
 @dataclass
@@ -243,16 +133,12 @@ class _Scene:
     """The pybullet world of one execution: floor, walls, pile and hand."""
 
     def __init__(self, client: int, world: World, scene: dict[str, Any], grasp: GraspPose) -> None:
-        from osgd.checks.hand import create_hand  # noqa: PLC0415
-        from osgd.physics import create_object_body, pybullet_module  # noqa: PLC0415
-        from osgd.scenes.drop import build_world  # noqa: PLC0415
-
         self.pybullet = pybullet_module()
         self.client = client
         self.checks = world.params("checks")
         self.steps = 0
         scenes = world.params("scenes")
-        statics = build_world(client, scenes)
+        statics = add_floor_and_walls(client, scenes)
         self.names = {statics[0]: "floor", **{body: "wall" for body in statics[1:]}}
         self.objects = []
         for index, obj in enumerate(scene["objects"]):
@@ -295,8 +181,6 @@ class _Scene:
 
     def between_pads(self, candidates: list[int] | None = None) -> list[int]:
         """Indices of the objects (of ``candidates``, default all) both pads touch, in scene order."""
-        from osgd.checks.hand import FINGER_A, FINGER_B  # noqa: PLC0415
-
         if self.hand.opening() < self.checks.min_opening:
             return []
         indices = range(len(self.objects)) if candidates is None else candidates
@@ -381,8 +265,6 @@ def _lift(scene: _Scene, params: RobotParams, gripped: list[int]) -> tuple[list[
 
 def _record_hold(world: World, scene: _Scene, model_id: str, outcome: Execution) -> None:
     """The grasps stage's label of the held pose, and the nearest annotated grasp."""
-    from osgd.physics import get_mesh_pose  # noqa: PLC0415
-
     object_position, object_quaternion = get_mesh_pose(scene.objects[outcome.gripped])
     hand_position, hand_quaternion = scene.hand.pose()
     inverse = Rotation.from_quat(object_quaternion).inv()
@@ -393,8 +275,6 @@ def _record_hold(world: World, scene: _Scene, model_id: str, outcome: Execution)
 
 
 def _finish(scene: _Scene, outcome: Execution) -> Execution:
-    from osgd.physics import get_mesh_pose  # noqa: PLC0415
-
     outcome.object_poses = [get_mesh_pose(body) for body in scene.objects]
     outcome.hand_pose = scene.hand.pose()
     outcome.hand_opening = scene.hand.opening()
@@ -417,8 +297,6 @@ def execute(world: World, scene_row: dict[str, Any], grasp: GraspPose, params: R
     -------
     Execution
     """
-    from osgd.physics import physics_client  # noqa: PLC0415
-
     checks = world.params("checks")
     outcome = Execution(grasp)
     with physics_client(timestep=checks.timestep, gravity=-checks.gravity) as client:

@@ -18,10 +18,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
-from osgd.camera import CameraIntrinsics
+from osgd.contract.taxonomy import CATEGORIES
+from osgd.simulation import CameraIntrinsics, CameraPose, RenderObject, look_at
+from togcrf.geometry import rectangle_corners
 from togcrf.robot.execute import Execution
-from togcrf.robot.pile import Observation
+from togcrf.robot.observation import Observation
 from togcrf.robot.protocol import Trial
 
 #: Side of the render, px, and its horizontal field of view, rad.
@@ -35,10 +40,8 @@ def hand_mesh(gripper: Any, opening: float) -> tuple[np.ndarray, np.ndarray]:
     """The simulated hand at an opening as one triangle mesh in the gripper frame.
 
     The fingers at the opening, the palm at the maximum opening, as
-    :func:`osgd.checks.hand.create_hand` builds it (a palm does not shrink).
+    :func:`osgd.simulation.create_hand` builds it (a palm does not shrink).
     """
-    import trimesh  # noqa: PLC0415
-
     parts = [box for box in gripper.boxes(opening) if box[0] != "palm"]
     parts += [box for box in gripper.boxes(gripper.max_opening) if box[0] == "palm"]
     boxes = [trimesh.creation.box(extents=2 * half, transform=trimesh.transformations.translation_matrix(centre))
@@ -47,9 +50,7 @@ def hand_mesh(gripper: Any, opening: float) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(mesh.vertices), np.asarray(mesh.faces)
 
 
-def _side_camera(target: np.ndarray, across: np.ndarray) -> tuple[CameraIntrinsics, Any]:
-    from osgd.samples.viewpoint import look_at  # noqa: PLC0415
-
+def _side_camera(target: np.ndarray, across: np.ndarray) -> tuple[CameraIntrinsics, CameraPose]:
     side = np.array([across[0], across[1], 0.0])
     side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([0.0, -1.0, 0.0])
     position = target + 0.42 * side + np.array([0.0, 0.0, 0.16])
@@ -61,8 +62,6 @@ def _side_camera(target: np.ndarray, across: np.ndarray) -> tuple[CameraIntrinsi
 
 def render_state(world: Any, observation: Observation, execution: Execution | None, renderer: Any) -> np.ndarray:
     """An RGB image (H, W, 3) of the pile (and hand) at the end of an execution, or at rest."""
-    from osgd.samples.renderer import RenderObject  # noqa: PLC0415
-
     scene = observation.scene
     poses = execution.object_poses if execution is not None else [
         (np.asarray(obj["position"]), np.asarray(obj["quaternion"])) for obj in scene["objects"]]
@@ -103,14 +102,9 @@ def _colour(depth: np.ndarray, mask: np.ndarray, count: int, with_hand: bool) ->
 def failure_picture(path: Path, trial: Trial, policy: str, observation: Observation, rectangle: np.ndarray | None,
                     execution: Execution | None, reason: str, state: np.ndarray, detections: Any = None) -> Path:
     """Draw a failed trial (see the module text) into a PNG; ``detections`` (a checkpoint's) dashed in yellow."""
-    import matplotlib  # noqa: PLC0415
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    from togcrf.metrics import rectangle_corners  # noqa: PLC0415
-
-    figure, (left, right) = plt.subplots(1, 2, figsize=(11, 5.6), dpi=90)
+    figure = Figure(figsize=(11, 5.6), dpi=90)
+    left, right = figure.subplots(1, 2)
     depth = observation.depth
     valid = depth > 0
     low, high = np.percentile(depth[valid], [1, 99]) if valid.any() else (0.0, 1.0)
@@ -118,7 +112,7 @@ def failure_picture(path: Path, trial: Trial, policy: str, observation: Observat
     for index, obj in enumerate(observation.sample["objects"]):
         x1, y1, x2, y2 = obj["box"]
         colour = _COLOURS[obj["object_index"] % len(_COLOURS)]
-        left.add_patch(plt.Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor=colour, linewidth=1.2))
+        left.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor=colour, linewidth=1.2))
         left.text(x1, y1 - 2 - 9 * (index % 2), obj["category"], color="white", fontsize=7,
                   bbox={"facecolor": colour, "edgecolor": "none", "pad": 1})
     if detections is not None:
@@ -142,19 +136,14 @@ def failure_picture(path: Path, trial: Trial, policy: str, observation: Observat
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path)
-    plt.close(figure)
     return path
 
 
 def _draw_detections(axes: Any, detections: Any) -> None:
     """A checkpoint's detections: dashed yellow boxes, category and score at the bottom-left corner."""
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    from osgd.contract.taxonomy import CATEGORIES  # noqa: PLC0415
-
     for box, category, score in zip(detections.boxes, detections.categories, detections.scores, strict=True):
         x1, y1, x2, y2 = box
-        axes.add_patch(plt.Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor="yellow", linewidth=1.0,
+        axes.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor="yellow", linewidth=1.0,
                                      linestyle="--"))
         axes.text(x1, y2 + 8, f"{CATEGORIES[int(category)]} {score:.2f}", color="black", fontsize=6,
                   bbox={"facecolor": "yellow", "edgecolor": "none", "pad": 1})

@@ -1,14 +1,15 @@
 """A trial's pile and what the camera sees of it, through the stack and render stages.
 
-The pile is dropped by the stack stage's own :func:`osgd.scenes.drop.generate_scene`
+The pile is dropped by the stack stage's own drop (:func:`osgd.simulation.drop_pile`)
 with the pipeline's ``[scenes]`` parameters, at the trial's scene index
 (:mod:`togcrf.robot.protocol`); its draw is the stage's
-:func:`~osgd.scenes.drop.draw_releases` with one change: when none of the
+:func:`~osgd.simulation.draw_releases` with one change: when none of the
 drawn tools can do the trial's task (or is of the named category), one of
 them, chosen at random, is replaced by such a tool, as the paper's piles
-always held a suitable object. The depth image is the render stage's
-:func:`osgd.samples.stage.render_sample` (camera pose, crop, renderer, noise
-and ground-truth rectangles), with the pipeline's ``[samples]`` parameters.
+always held a suitable object. The depth image is rendered by the render
+stage (:func:`osgd.simulation.render_pile`: camera pose, crop, renderer,
+noise and ground-truth rectangles), with the pipeline's ``[samples]`` parameters;
+:class:`~togcrf.robot.observation.Observation` holds what the robot sees.
 
 A feasible pile (:func:`feasible_pile`): the render stage must annotate at
 least one rectangle of the trial's task (on the named category for "no
@@ -26,59 +27,18 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from osgd.camera import CameraIntrinsics
-from osgd.samples.viewpoint import CameraPose
-from togcrf.robot.protocol import Trial
+from osgd.contract.encoding import decode_depth, decode_mask
+from osgd.simulation import CameraIntrinsics, CameraPose, Release, draw_releases, drop_pile, pile_collider, render_pile
+from togcrf.robot.lifting import lift_rectangle
+from togcrf.robot.observation import Observation
+from togcrf.robot.protocol import PILES_PER_TRIAL, Trial
 from togcrf.robot.world import World
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Observation:
-    """A pile at rest and its depth image.
-
-    Attributes
-    ----------
-    scene : dict
-        A ``scenes`` row: ``scene_id``, ``scene_index``, ``seed``, ``objects``
-        (``model_id``, ``category``, mesh-frame ``position`` and
-        ``quaternion`` in the world).
-    depth : (H, W) float32
-        Noisy depth, m, 0 = no reading (what the robot sees).
-    mask : (H, W) uint8
-        ``object_index + 1`` on each object's visible pixels.
-    intrinsics : CameraIntrinsics
-    pose : CameraPose
-    sample : dict
-        The ``samples`` row: ``objects`` (boxes) and ``grasps`` (the
-        ground-truth rectangles with their tasks and camera-frame poses).
-    """
-
-    scene: dict[str, Any]
-    depth: np.ndarray
-    mask: np.ndarray
-    intrinsics: CameraIntrinsics
-    pose: CameraPose
-    sample: dict[str, Any]
-
-    def object_at(self, x: float, y: float) -> int:
-        """The scene object index seen at a pixel, -1 for the table or outside the image."""
-        row, column = round(y), round(x)
-        height, width = self.mask.shape
-        if not (0 <= row < height and 0 <= column < width):
-            return -1
-        return int(self.mask[row, column]) - 1
-
-    @property
-    def categories(self) -> list[str]:
-        """The category of every object of the pile, in scene order."""
-        return [str(obj["category"]) for obj in self.scene["objects"]]
 
 
 def suitable_categories(world: World, trial: Trial) -> set[str]:
@@ -90,7 +50,6 @@ def suitable_categories(world: World, trial: Trial) -> set[str]:
 
 def draw_with_suitable(categories: set[str]) -> Callable:
     """The stack stage's draw, with one tool replaced by one of ``categories`` when none was drawn."""
-    from osgd.scenes.drop import Release, draw_releases  # noqa: PLC0415
 
     def draw(rng: np.random.Generator, pool: Any, params: Any) -> list:
         releases = draw_releases(rng, pool, params)
@@ -113,11 +72,9 @@ def build_pile(world: World, trial: Trial, pile: int = 0) -> dict[str, Any]:
     RuntimeError
         If every attempt of the stack stage was rejected.
     """
-    from osgd.scenes.drop import generate_scene  # noqa: PLC0415
-
     params = world.params("scenes")
-    result = generate_scene(world.pool, params, world.seed, trial.scene_index + pile,
-                            draw=draw_with_suitable(suitable_categories(world, trial)))
+    result = drop_pile(world.pool, params, world.seed, trial.scene_index + pile,
+                       draw=draw_with_suitable(suitable_categories(world, trial)))
     if result.row is None:
         reasons = ", ".join(f"{reason} {count}" for reason, count in sorted(result.rejections.items()))
         raise RuntimeError(f"trial {trial.name}: all {params.max_attempts} attempts at its pile were rejected "
@@ -127,14 +84,11 @@ def build_pile(world: World, trial: Trial, pile: int = 0) -> dict[str, Any]:
 
 def observe(world: World, scene: dict[str, Any], renderer: Any) -> Observation:
     """Render a pile with the render stage: noisy depth, mask, camera, ground-truth rectangles."""
-    from osgd.contract.encoding import decode_depth, decode_mask  # noqa: PLC0415
-    from osgd.samples.stage import render_sample  # noqa: PLC0415
-
     params = world.params("samples")
     model_ids = {obj["model_id"] for obj in scene["objects"]}
     near, far = params.intrinsics().near, params.intrinsics().far
-    row = render_sample(scene, 0, world.models, world.stable_grasps(model_ids), params, world.seed, renderer,
-                        world.gripper, (near, far))
+    row = render_pile(scene, world.models, world.stable_grasps(model_ids), params, world.seed, renderer,
+                      world.gripper, (near, far))
     fx, fy, cx, cy = row["intrinsics"]
     intrinsics = CameraIntrinsics(width=int(row["width"]), height=int(row["height"]), fx=fx, fy=fy, cx=cx, cy=cy,
                                   near=near, far=far)
@@ -153,14 +107,11 @@ def clear_grasps(world: World, observation: Observation, grasps: list[dict[str, 
                  tolerance: float = 0.001) -> list[bool]:
     """Whether each ground-truth rectangle's top-down grasp is clear of every tool on its way down.
 
-    The rectangle is lifted as the robot lifts it (:func:`togcrf.robot.execute.lift_rectangle`) and the
+    The rectangle is lifted as the robot lifts it (:func:`togcrf.robot.lifting.lift_rectangle`) and the
     pre-shaped gripper is tested against every tool of the pile, the grasped one included, at the grasp
     pose and every 5 mm up to ``params.approach_height`` above it (the render stage's pile collision
-    test, :mod:`osgd.samples.collision`; penetration up to ``tolerance`` allowed).
+    test, :func:`osgd.simulation.pile_collider`; penetration up to ``tolerance`` allowed).
     """
-    from osgd.samples.collision import pile_collider  # noqa: PLC0415
-    from togcrf.robot.execute import lift_rectangle  # noqa: PLC0415
-
     raises = np.arange(0.0, params.approach_height + 1e-9, 0.005)
     clear = []
     with pile_collider(world.models, observation.scene["objects"], world.gripper, tolerance) as collider:
@@ -182,8 +133,6 @@ def feasible_pile(world: World, trial: Trial, renderer: Any, params: Any, max_pi
     piles : int
         Piles drawn (the last one is used, feasible or not, after ``max_piles``).
     """
-    from togcrf.robot.protocol import PILES_PER_TRIAL  # noqa: PLC0415
-
     for pile in range(min(max_piles, PILES_PER_TRIAL)):
         observation = observe(world, build_pile(world, trial, pile), renderer)
         if not require_clear or any(clear_grasps(world, observation, task_grasps(observation, trial), params)):

@@ -15,7 +15,7 @@ depth image's pixels, or none with the reason.
   the 3-D grasp that comes most nearly straight down (the executed grasp is
   top-down), then the highest, whose top-down grasp the gripper can reach
   without touching any tool on the way down (the pile collision test of the
-  render stage, :mod:`osgd.samples.collision`); the first of all when none can.
+  render stage, :func:`osgd.simulation.pile_collider`); the first of all when none can.
 - :class:`RandomPolicy`: a pixel drawn uniformly among those with a depth
   reading (table and tools), a closing angle uniform in [-pi/2, pi/2) and
   an opening uniform in [1 cm, the gripper's maximum].
@@ -32,8 +32,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from togcrf.checkpoint import load_checkpoint
-from togcrf.robot.pile import Observation
+from togcrf.predict import best_grasp_for_task, keep_confident, predict_depth
+from togcrf.robot.observation import Observation
+from togcrf.robot.pile import clear_grasps, task_grasps
 from togcrf.robot.protocol import Trial, trial_rng
+from togcrf.tta import check_view_count, views_label
 
 log = logging.getLogger(__name__)
 
@@ -99,8 +102,6 @@ class OraclePolicy:
 
     def choose(self, trial: Trial, observation: Observation) -> Choice:
         """The first ground-truth grasp of the task (of the named category) whose top-down grasp is clear."""
-        from togcrf.robot.pile import clear_grasps, task_grasps  # noqa: PLC0415
-
         grasps = task_grasps(observation, trial)
         if not grasps:
             return Choice(None, reason="no ground-truth rectangle of the task in the image")
@@ -161,8 +162,6 @@ class ModelPolicy:
 
     def choose(self, trial: Trial, observation: Observation) -> Choice:
         """Detect, then :func:`togcrf.predict.best_grasp_for_task`."""
-        from togcrf.predict import best_grasp_for_task, keep_confident, predict_depth  # noqa: PLC0415
-
         detections = keep_confident(predict_depth(self.model, observation.depth, self.image_size, self.device,
                                                   self.depth_reference, self.views),
                                     self.min_score)
@@ -186,8 +185,6 @@ def model_policy(checkpoint: Path, name: str | None = None, *, min_score: float 
     FileNotFoundError, ValueError
         Not a togcrf checkpoint, or views not in ``togcrf.tta.VIEW_COUNTS``.
     """
-    from togcrf.tta import check_view_count, views_label  # noqa: PLC0415
-
     check_view_count(views)
     model, config = load_checkpoint(checkpoint, device=device)
     checkpoint = Path(checkpoint)

@@ -1,4 +1,4 @@
-"""The trial log (Parquet), Table III and the failure pictures.
+"""The trial log (Parquet), Table III and the timing summary.
 
 Trial log columns (:data:`TRIAL_LOG`), one row per trial and policy:
 
@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from togcrf.robot.protocol import NAMED_TASKS, PAPER_TABLE3, PAPER_TOTAL, TABLE_TASKS
 
@@ -72,8 +73,6 @@ TRIAL_LOG = pa.schema([
 
 def write_log(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     """Write trial rows as a Parquet file with :data:`TRIAL_LOG`'s columns."""
-    import pyarrow.parquet as pq  # noqa: PLC0415
-
     path.parent.mkdir(parents=True, exist_ok=True)
     table = pa.Table.from_pylist([dict(row) for row in rows], schema=TRIAL_LOG)
     pq.write_table(table, path)
@@ -88,8 +87,6 @@ def read_logs(paths: Sequence[Path]) -> list[dict[str, Any]]:
     FileNotFoundError, ValueError
         A missing file, or one without the trial log's columns.
     """
-    import pyarrow.parquet as pq  # noqa: PLC0415
-
     rows: list[dict[str, Any]] = []
     for path in paths:
         if not Path(path).is_file():
@@ -178,3 +175,16 @@ def _paper_value(name: str, task: str, index: int) -> float | None:
         weights = {task: 30 if task in NAMED_TASKS else 10 for task in values}
         return sum(values[task][index] * weights[task] for task in values) / sum(weights.values())
     return PAPER_TABLE3[name].get(task, (None, None))[index]
+
+
+def timing_summary(rows: Sequence[dict[str, Any]]) -> dict[str, float]:
+    """Mean seconds per trial of each phase, and of a whole single-policy trial per policy."""
+    summary = {f"mean_{phase}": float(np.mean([row[f"seconds_{phase}"] for row in rows]))
+               for phase in ("pile", "policy", "execute")}
+    summary["mean_piles"] = float(np.mean([row["piles"] for row in rows]))
+    for name in dict.fromkeys(row["policy"] for row in rows):
+        chosen = [row for row in rows if row["policy"] == name]
+        summary[f"trial_{name}"] = float(np.mean([
+            row["seconds_pile"] + row["seconds_policy"] + row["seconds_execute"]
+            for row in chosen]))
+    return summary

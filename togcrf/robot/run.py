@@ -17,13 +17,17 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+import torch
 
-from togcrf.robot.execute import RobotParams, execute, judge, lift_rectangle
-from togcrf.robot.pile import Observation, feasible_pile
+from osgd.simulation import load_pipeline, make_renderer, stage_renderer
+from togcrf.robot.execute import execute, judge
+from togcrf.robot.lifting import RobotParams, lift_rectangle
+from togcrf.robot.observation import Observation
+from togcrf.robot.pictures import failure_picture, render_state
+from togcrf.robot.pile import feasible_pile
 from togcrf.robot.policies import Choice, OraclePolicy, Policy, RandomPolicy, model_policy
 from togcrf.robot.protocol import Trial
-from togcrf.robot.world import World
+from togcrf.robot.world import World, load_world
 
 log = logging.getLogger(__name__)
 
@@ -141,8 +145,6 @@ def try_policy(world: World, trial: Trial, observation: Observation, policy: Pol
 
 def _draw_failure(world: World, trial: Trial, policy: Policy, observation: Observation, choice: Choice,
                   execution: Any, reason: str, spec: RunSpec, renderer: Any) -> str:
-    from togcrf.robot.pictures import failure_picture, render_state  # noqa: PLC0415
-
     relative = Path("failures") / policy.name.replace(":", "_").replace("/", "_") / f"{trial.name}.png"
     state = render_state(world, observation, execution, renderer)
     failure_picture(spec.out / relative, trial, policy.name, observation, choice.rectangle, execution, reason, state,
@@ -152,8 +154,6 @@ def _draw_failure(world: World, trial: Trial, policy: Policy, observation: Obser
 
 def picture_renderer(fallback: Any) -> Any:
     """The exact CPU ray caster for failure pictures, else the render stage's renderer."""
-    from osgd.samples.renderer import make_renderer  # noqa: PLC0415
-
     try:
         return make_renderer("embree")
     except RuntimeError:
@@ -173,9 +173,7 @@ def run_trials(world: World, trials: Sequence[Trial], policies: Sequence[Policy]
     progress : callable, optional
         Called with every row as it is made.
     """
-    from osgd.samples.stage import resolve_renderer  # noqa: PLC0415
-
-    renderer, notes = resolve_renderer(world.params("samples").renderer)
+    renderer, notes = stage_renderer(world.params("samples").renderer)
     for note in notes:
         log.warning(note)
     pictures = picture_renderer(renderer)
@@ -195,9 +193,6 @@ def run_trials(world: World, trials: Sequence[Trial], policies: Sequence[Policy]
 
 def worker_world(spec: RunSpec) -> World:
     """The world of a run, loaded from its data dir and config."""
-    from osgd.pipeline import load_pipeline  # noqa: PLC0415
-    from togcrf.robot.world import load_world  # noqa: PLC0415
-
     if spec.data_dir is None or spec.config_path is None:
         raise ValueError("a worker process needs the run's data dir and config file")
     return load_world(spec.data_dir, load_pipeline(spec.config_path, spec.overrides))
@@ -205,8 +200,6 @@ def worker_world(spec: RunSpec) -> World:
 
 def _worker(spec: RunSpec, trials: Sequence[Trial], progress: Callable[[dict[str, Any]], None] | None
             ) -> list[dict[str, Any]]:
-    import torch  # noqa: PLC0415
-
     torch.set_num_threads(1)
     world = worker_world(spec)
     return run_trials(world, trials, make_policies(spec, world), spec, progress)
@@ -232,15 +225,3 @@ def run_protocol(spec: RunSpec, trials: Sequence[Trial], workers: int = 1, world
     policy_order = {name: index for index, name in enumerate(dict.fromkeys(row["policy"] for row in rows))}
     return sorted(rows, key=lambda row: (order[(row["task"], row["repeat"])], policy_order[row["policy"]]))
 
-
-def timing_summary(rows: Sequence[dict[str, Any]]) -> dict[str, float]:
-    """Mean seconds per trial of each phase, and of a whole single-policy trial per policy."""
-    summary = {f"mean_{phase}": float(np.mean([row[f"seconds_{phase}"] for row in rows]))
-               for phase in ("pile", "policy", "execute")}
-    summary["mean_piles"] = float(np.mean([row["piles"] for row in rows]))
-    for name in dict.fromkeys(row["policy"] for row in rows):
-        chosen = [row for row in rows if row["policy"] == name]
-        summary[f"trial_{name}"] = float(np.mean([
-            row["seconds_pile"] + row["seconds_policy"] + row["seconds_execute"]
-            for row in chosen]))
-    return summary

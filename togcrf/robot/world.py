@@ -7,10 +7,11 @@ config. :func:`load_world` reads them from a data dir through the
 pipeline's manifest (checksums verified); :func:`world_from_tables` takes
 the tables themselves (the tests use the committed golden shards).
 
-The judge of task compatibility is the grasps stage's own labelling rule
-(:mod:`osgd.grasps.labels`): the parts between the pads of the executed
-grasp, through :class:`osgd.grasps.model_grasps.GraspAnnotator`, built once
-per model (it samples the model's surface with the stage's seed).
+The judge of task compatibility is the grasps stage's own labelling rule:
+the parts between the pads of the executed grasp
+(:func:`osgd.simulation.pose_label`), through the stage's annotator of the
+model (:func:`osgd.simulation.grasp_annotator`), built once per model (it
+samples the model's surface with the stage's seed).
 """
 
 from __future__ import annotations
@@ -24,10 +25,19 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
-from osgd.config import PipelineConfig
-from osgd.gripper import PANDA, Gripper
-from osgd.samples.projection import GraspSet, grasp_set_from_rows
+from osgd.simulation import (
+    PANDA,
+    GraspSet,
+    Gripper,
+    ModelPool,
+    PipelineConfig,
+    ShardStore,
+    grasp_annotator,
+    grasp_set_from_rows,
+    pose_label,
+)
 
 log = logging.getLogger(__name__)
 
@@ -72,10 +82,8 @@ class World:
 
     @property
     def pool(self) -> Any:
-        """The stack stage's :class:`osgd.scenes.drop.ModelPool` of these models."""
+        """The stack stage's :class:`~osgd.simulation.ModelPool` of these models."""
         if self._pool is None:
-            from osgd.scenes.drop import ModelPool  # noqa: PLC0415
-
             self._pool = ModelPool(list(self.models.values()))
         return self._pool
 
@@ -109,14 +117,9 @@ class World:
     def annotator(self, model_id: str) -> Any:
         """The grasps stage's annotator of one model (its labelling rule and surface samples), cached."""
         if model_id not in self._annotators:
-            from osgd.grasps.labels import effective_rules  # noqa: PLC0415
-            from osgd.grasps.model_grasps import GraspAnnotator, ModelInput  # noqa: PLC0415
-
             mask = pc.equal(self.models_table.column("model_id"), model_id)
-            table = self.models_table.filter(mask)
-            params = self.params("grasps")
-            self._annotators[model_id] = GraspAnnotator(
-                ModelInput.from_table(table, 0), params, effective_rules(params.label_rules), self.gripper, self.seed)
+            self._annotators[model_id] = grasp_annotator(self.models_table.filter(mask), self.params("grasps"),
+                                                         self.gripper, self.seed)
         return self._annotators[model_id]
 
     def grasp_label(self, model_id: str, position: np.ndarray, rotation: np.ndarray, opening: float) -> str:
@@ -137,17 +140,7 @@ class World:
         str
             One of ``taxonomy.TASKS``; "no task" also when the model has no part labels.
         """
-        from osgd.grasps.geometry import closing_region  # noqa: PLC0415
-
-        annotator = self.annotator(model_id)
-        rule = annotator.rule
-        reach = float(np.linalg.norm(closing_region(self.gripper, self.gripper.max_opening))
-                      + max(rule.task_clearance, rule.hand_over_clearance))
-        centre = np.asarray(position, dtype=np.float64)
-        nearby = annotator.surface.near(centre, reach)
-        # GraspAnnotator._labels is the stage's labeller; a public per-pose
-        # function in osgd.grasps would be the cleaner door (docs/togcrf-robot.md).
-        return annotator._labels(centre, np.asarray(rotation, dtype=np.float64)[None], float(opening), nearby)[0]
+        return pose_label(self.annotator(model_id), position, rotation, opening)
 
     def nearest_grasp(self, model_id: str, position: np.ndarray, closing: np.ndarray) -> tuple[str, float]:
         """The task of the annotated grasp nearest to a grasp, and how near it is.
@@ -211,8 +204,6 @@ def manifest_keys(data_dir: Path, pipeline: str) -> dict[str, list[str]]:
     FileNotFoundError
         If the manifest is missing or lacks a table.
     """
-    from osgd.store import ShardStore  # noqa: PLC0415
-
     store = ShardStore(data_dir)
     manifest = store.read_manifest(pipeline)
     if manifest is None:
@@ -232,11 +223,9 @@ def load_world(data_dir: Path, config: PipelineConfig) -> World:
 
     Raises
     ------
-    FileNotFoundError, osgd.store.ShardError
+    FileNotFoundError, osgd.contract.shards.ShardError
         A missing manifest or shard, or one whose checksum disagrees.
     """
-    from osgd.store import ShardStore  # noqa: PLC0415
-
     store = ShardStore(data_dir)
     keys = manifest_keys(data_dir, config.pipeline.name)
     tables = {table: store.read_many(table, keys[table]) for table in WORLD_TABLES}
@@ -247,8 +236,6 @@ def load_world(data_dir: Path, config: PipelineConfig) -> World:
 
 def stored_scene_seeds(data_dir: Path) -> set[int]:
     """The ``seed`` of every scene in every scenes shard of a data dir (any pipeline)."""
-    import pyarrow.parquet as pq  # noqa: PLC0415
-
     seeds: set[int] = set()
     for path in sorted((Path(data_dir) / "scenes").glob("*.parquet")):
         seeds.update(int(value) for value in pq.read_table(path, columns=["seed"]).column("seed").to_pylist())

@@ -1,13 +1,14 @@
-"""Validate the grasp check both ways on the paper authors' annotated grasps (issue #17).
+"""The grasp check's fidelity, both ways, on the paper authors' annotated grasps.
 
-Every grasp the grasps stage makes from the hand-made pairs of the shared
-models (``../shared/osgd-models``) is tried as annotated and made wrong in
-three ways, each under both criteria (``lift`` and ``shake``):
+Every grasp the grasps stage makes from the hand-made pairs of the authors'
+models (``[models] osgd_dir`` of ``--config``, ``pipelines/osgd.toml``) is
+tried as annotated and made wrong in three ways, each under both criteria
+(``lift`` and ``shake``):
 
 - ``annotated``: as the grasps stage made it;
-- ``off_centre``: the grasp centre moved 3 cm further along the approach
-  axis (the hand reaches 3 cm past the annotated contacts: its palm meets a
-  thick object, its pads pass beyond a thin one);
+- ``off_centre``: the grasp centre moved ``OFF_CENTRE`` further along the
+  approach axis (the hand reaches past the annotated contacts: its palm
+  meets a thick object, its pads pass beyond a thin one);
 - ``turned``: the gripper turned about the grasp centre by the smallest
   rotation that lays its closing axis on the tool's long axis (its smallest
   box's longest side); for most grasps a turn about the approach axis, for
@@ -20,23 +21,25 @@ three ways, each under both criteria (``lift`` and ``shake``):
 
 A good check passes the first set and fails the other three under both
 criteria (``shake`` implies ``lift``, so failing ``lift`` fails both).
-Prints the tables of docs/checks.md and writes every trial's outcome and the
-tables as JSON.
+Prints, per category and per task, the share of the annotated grasps that
+hold and of each wrong set that fails, as Markdown tables, and writes every
+trial's outcome and the tables as JSON.
 
-``--physics`` prints instead the textbook probes (osgd/checks/calibration.py)
+``--physics`` prints instead the textbook probes (:mod:`osgd.checks.calibration`)
 for both pad models: the grip force at which a held box slips and at which a
 bar held off its centre turns, against the closed-form answers.
 
-Usage::
+Usage, from the repository root::
 
-    python benchmarks/validate_checks.py [--workers 2] [--data-dir DIR] [--pad-contact soft|rigid]
-        [--json lab/results/checks-validation/soft.json]
-    python benchmarks/validate_checks.py --physics
+    python -m osgd.checks.validate [--workers 2] [--data-dir DIR] [--pad-contact soft|rigid]
+        [--config pipelines/osgd.toml] [--set PARAM=VALUE ...] [--json OUT.json]
+    python -m osgd.checks.validate --physics
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import tempfile
@@ -50,21 +53,43 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from helpers import OSGD_MODELS, bar_mesh, tool_of_mass  # noqa: E402
-
-from osgd.checks.calibration import FRICTIONS, coulomb_probe, torsion_probe  # noqa: E402
-from osgd.checks.params import ChecksStageParams  # noqa: E402
-from osgd.checks.stage import trial_seed  # noqa: E402
-from osgd.checks.trial import approach_surface, run_trial  # noqa: E402
-from osgd.gripper import PANDA  # noqa: E402
-from osgd.models.parts import principal_frame  # noqa: E402
+from osgd.checks.calibration import FRICTIONS, coulomb_probe, torsion_probe
+from osgd.checks.params import ChecksStageParams
+from osgd.checks.stage import trial_seed
+from osgd.checks.trial import approach_surface, run_trial
+from osgd.contract.taxonomy import PART_INDEX
+from osgd.gripper import PANDA
+from osgd.models.parts import principal_frame
 
 VARIANTS = ("annotated", "off_centre", "turned", "narrow")
 #: How far ``off_centre`` moves the grasp along the approach, m.
 OFF_CENTRE = 0.03
+
+
+def tool_of_mass(name: str, mesh: trimesh.Trimesh, mass: float, friction: float) -> dict[str, Any]:
+    """A ``models`` row of one convex part (a knife's handle) of ``mesh``, weighing ``mass`` kg, with lateral
+    pad ``friction`` (spinning and rolling friction 0.01): the object of the textbook probes."""
+    density = mass / mesh.volume
+    digest = hashlib.sha256(mesh.vertices.tobytes() + mesh.faces.tobytes() + b"knife")
+    return {
+        "model_id": digest.hexdigest()[:16], "name": name, "category": "knife", "source": "test", "scale": 1.0,
+        "length": float(max(mesh.extents)), "vertices": mesh.vertices.tolist(),
+        "faces": mesh.faces.astype(np.int32).tolist(),
+        "face_parts": [PART_INDEX["handle"]] * len(mesh.faces),
+        "convex_parts": [{"vertices": mesh.vertices.tolist(), "faces": mesh.faces.astype(np.int32).tolist()}],
+        "decomposition": json.dumps({"method": "primitives"}), "density": density, "mass": float(mass),
+        "center_of_mass": mesh.center_mass.tolist(), "inertia": (mesh.moment_inertia * density).reshape(-1).tolist(),
+        "friction": [friction, 0.01, 0.01], "annotated_pairs": [], "provenance": json.dumps({"test": name}),
+    }
+
+
+def bar_mesh(section: str, length: float = 0.2, thickness: float = 0.015) -> trimesh.Trimesh:
+    """A bar along x, centred on the origin: a ``"square"`` or ``"round"`` section ``thickness`` across."""
+    if section == "round":
+        mesh = trimesh.creation.cylinder(radius=thickness / 2, height=length, sections=16)
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+        return mesh
+    return trimesh.creation.box(extents=[length, thickness, thickness])
 
 
 def width_at_grasp(mesh: trimesh.Trimesh, position: np.ndarray, quaternion: np.ndarray) -> float:
@@ -123,13 +148,18 @@ def _model_trials(job: dict[str, Any]) -> list[dict[str, Any]]:
     return rows
 
 
-def load_grasps(data_dir: Path, workers: int) -> list[dict[str, Any]]:
-    """Models and grasps of the shared set, built (or reused) under ``data_dir``."""
+def load_grasps(config_path: Path, data_dir: Path, workers: int) -> list[dict[str, Any]]:
+    """Models and grasps of the authors' models of the pipeline at ``config_path``, built (or reused) under
+    ``data_dir``."""
     from osgd.executor import make_executor  # noqa: PLC0415
     from osgd.pipeline import load_pipeline, run_stages  # noqa: PLC0415
     from osgd.store import ShardStore  # noqa: PLC0415
 
-    config = load_pipeline(ROOT / "pipelines" / "osgd.toml")
+    config = load_pipeline(config_path)
+    models_dir = config.params["models"].osgd_dir
+    if not models_dir or not Path(models_dir).is_dir():
+        raise SystemExit(f"the authors' models are not at {models_dir} ([models] osgd_dir of {config_path}): "
+                         "nothing to validate")
     store = ShardStore(data_dir)
     reports = {report.stage: report for report in run_stages(config, store, make_executor(workers),
                                                               ["models", "grasps"])}
@@ -173,9 +203,7 @@ def table(title: str, by_group: dict[str, dict[str, dict[str, float]]]) -> str:
 
 
 def validate(arguments: argparse.Namespace) -> None:
-    if not OSGD_MODELS.is_dir():
-        raise SystemExit(f"the shared models are not at {OSGD_MODELS}: nothing to validate")
-    jobs = load_grasps(arguments.data_dir, arguments.workers)[::arguments.every]
+    jobs = load_grasps(arguments.config, arguments.data_dir, arguments.workers)[::arguments.every]
     overrides = dict(override.split("=", 1) for override in arguments.set)
     params = ChecksStageParams(pad_contact=arguments.pad_contact, **overrides).key_dict()
     for job in jobs:
@@ -232,6 +260,8 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="trial processes")
     parser.add_argument("--data-dir", type=Path, default=Path(tempfile.gettempdir()) / "osgd-validate-checks",
                         help="where the models and grasps shards are built or reused")
+    parser.add_argument("--config", type=Path, default=Path("pipelines") / "osgd.toml",
+                        help="the pipeline whose [models] osgd_dir holds the authors' models")
     parser.add_argument("--pad-contact", choices=("soft", "rigid"), default="soft", help="the pad model to validate")
     parser.add_argument("--every", type=int, default=1, help="validate every n-th model only (a quick look)")
     parser.add_argument("--set", action="append", default=[], metavar="PARAM=VALUE",

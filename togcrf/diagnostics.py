@@ -1,55 +1,63 @@
-"""Where a detector's top-1 grasp lands, under several ways of ranking its candidates (issue #15).
+"""Where a detector's top-1 grasp lands, under several ways of ranking its candidates.
 
 mAP-G counts a detection only when its top-1 grasp matches one of its
-object's ground-truth grasps (``togcrf.metrics``). This script runs a
-checkpoint (TOG, TOG-CRFs, or FCGN + Task without the rankings on the 7 x 7
-grid, ``GRID_RANKINGS``) on test samples, takes every detection that claims an object
-with grasps (same category, IoU > 0.5, best-scored first), and reports for
-each ranking of the 196 candidates the share whose first candidate matches
-a ground-truth grasp of the object, beside the share where any of the top 5
-or any candidate at all does (the ceilings of the ranking):
+object's ground-truth grasps (:mod:`togcrf.metrics`). These diagnostics run
+a checkpoint (TOG, TOG-CRFs, or FCGN + Task, which skips the rankings that
+read the 7 x 7 grid, ``GRID_RANKINGS``) on a split's samples and take every
+detection that claims an object with grasps (same category, IoU >
+``CLAIM_IOU``, best-scored detection first; :func:`claimed_objects`).
+
+**Shares of the claimed objects** (:func:`tally`), for each ranking of a
+detection's candidates (``RANKINGS``): the share whose first candidate
+matches a ground-truth grasp of the object, and the share where any of the
+first 5 does; beside them the share where any candidate at all does (the
+ceiling of every ranking):
 
 - ``stability``: P(stable), the detector's own ranking;
 - ``smooth-cells``: P(stable) averaged over the 3 x 3 cells around each
-  candidate, same anchor angle (edges average what exists);
-- ``smooth-cells-angles``: the 3 x 3 cells and the two neighbouring anchor
-  angles;
+  candidate, same anchor angle (at the grid's edges, over the cells that
+  exist; :func:`neighbourhood_mean`);
+- ``smooth-cells-angles``: over the 3 x 3 cells and the two neighbouring
+  anchor angles;
 - ``stability x task confidence``: P(stable) times the candidate's largest
-  task probability (the task head is trained on annotated places only, so
-  a confident task may mark one);
-- ``own-mask oracle``: P(stable) of the candidates whose centre lies on the
-  object's own visible pixels (the sample's instance mask, which the model
-  never sees): the ceiling of telling the object from its neighbours.
+  task probability;
+- ``own-mask oracle``: P(stable) among the candidates whose centre lies on
+  the object's own visible pixels (the sample's instance mask, which the
+  model never sees): the ceiling of telling the object from its neighbours.
 
-It also says where the detector's own top-1 candidate lands: on the
-object's own pixels, on another object's, or on the table
-(``top-1 on ...``), and gives the Table II figures (our protocol) of the
-same detections several ways (``TABLE_VARIANTS``, and the ``order oracle``,
-which reorders the detections of all samples together):
+Where the detector's own top-1 candidate lands (``LANDINGS``): on the
+object's own pixels, on another object's, or on the table; and the distance
+from the top-1 to the nearest ground-truth grasp centre of its object,
+apart for top-1 grasps that match and that miss.
 
-- ``detector``: as ``togcrf eval`` scores them;
+**Table II figures** (our protocol, ``METRIC_COLUMNS``) of the same
+detections, changed as each variant says (``TABLE_VARIANTS``;
+:func:`table_rows`):
+
+- ``detector``: unchanged, as ``togcrf eval`` scores them;
 - ``grasp oracle``: each detection's candidates that match a ground-truth
-  grasp of an object it could claim (same category, IoU > 0.5) ranked
-  first: the mAP-G that a perfect ranking of the candidates would reach at
-  the detector's mAP;
+  grasp of an object it could claim ranked first (:func:`grasp_oracle`):
+  the mAP-G that a perfect ranking of the candidates reaches at the
+  detector's mAP;
 - ``smooth-cells ranking``: each detection's candidates ranked by the
   ``smooth-cells`` mean instead of their own P(stable);
 - ``score x top-1 stability``: each detection's score multiplied by the
-  P(stable) of its top-1 candidate, so that detections with an uncertain
-  grasp rank lower in mAP-G (and in mAP, which shares the score);
-- ``order oracle``: the detector's own top-1 candidates, with the scores
-  of the detections that could claim an object (same category, IoU > 0.5)
-  handed out again, per category over all samples, so that those whose
-  top-1 matches a grasp of such an object come first (each group keeps its
-  order; the other detections keep their scores, so box mAP hardly moves):
-  the mAP-G that a perfect "is my top-1 grasp right" confidence would give
-  at the detector's match rate, where a wrong top-1 now ranks its detection
-  below every right one instead of among them.
+  P(stable) of its top-1 candidate (:func:`scored_by_top_grasp`);
+- ``order oracle`` (:func:`order_oracle`, over the detections of all
+  samples together): the detector's own top-1 candidates, with the scores
+  of the detections that could claim an object handed out again per
+  category (:func:`handed_out`), so that those whose top-1 matches a grasp
+  of such an object come first (each group keeps its order; the other
+  detections keep their scores, so box mAP hardly moves): the mAP-G that a
+  perfect "is my top-1 grasp right" confidence gives at the detector's
+  match rate.
 
-    python benchmarks/grasp_ranking.py runs/cpu-recipe/tog/checkpoint.pt --data data --pipeline recipe \
-        --max-samples 100 [--json out.json] [--views 8]
+Command line (``--views``: the detections with their candidates averaged
+over test-time views, :mod:`togcrf.tta`; ``--json``: also write the shares,
+distances and figures)::
 
-``--views`` takes the detections with their candidates averaged over test-time views (``togcrf.tta``).
+    python -m togcrf.diagnostics CHECKPOINT --data data --pipeline recipe-pairs96 \\
+        [--split test] [--max-samples 100] [--json out.json] [--views 8]
 """
 
 from __future__ import annotations
@@ -304,7 +312,7 @@ def for_branch(grasp_branch: str) -> tuple[dict, dict]:
 
 
 def checkpoint_parser(doc: str, pipeline: str | None = None) -> argparse.ArgumentParser:
-    """The arguments of this script and of the diagnostics that import it: a checkpoint, ``--data``, ``--pipeline``."""
+    """The arguments of this command line and of the tools that import it: a checkpoint, ``--data``, ``--pipeline``."""
     parser = argparse.ArgumentParser(description=doc.split("\n\n", maxsplit=1)[0])
     parser.add_argument("checkpoint", type=Path)
     parser.add_argument("--data", type=Path, default=Path("data"))

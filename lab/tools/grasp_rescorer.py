@@ -1,16 +1,14 @@
-"""Can the top-1 grasp be chosen better from the depth around each candidate? (issue #15, a diagnostic)
+"""Can the top-1 grasp be chosen better from the depth around each candidate?
 
-mAP-G judges a detection's top-1 grasp. On the recipe's 2-core checkpoints
-the top-1 of a claimed object matches one of its ground-truth grasps for
-56-60 %, one of the top 5 for 87 %, and ranked perfectly the detector's
-own candidates would give mAP-G 53-55 (``grasp_ranking.py``). The grasp
-head sees each RoI as 7 x 7 cells pooled from stride-8 features of a
-160 px image. This script asks whether a small second-stage network that
-looks at the full-resolution depth around each of a detection's top-K
-candidates, aligned with the gripper, picks the matching one more often.
+mAP-G judges a detection's top-1 grasp (``togcrf.diagnostics`` measures how
+often it matches, and how often one of the top 5 does). The grasp head sees
+each RoI as 7 x 7 cells pooled from stride-8 features. This harness trains
+a small second-stage network that looks at the full-resolution depth around
+each of a detection's top-K candidates, aligned with the gripper, and
+measures whether it picks the matching one more often.
 
 1. The checkpoint runs on the training samples; for every detection that
-   claims an object with grasps (``grasp_ranking.claimed_objects``), its
+   claims an object with grasps (``togcrf.diagnostics.claimed_objects``), its
    top-K candidates by P(stable) are cut out of the sample's depth (height
    above the fitted table plane) as two crops rotated into the gripper's
    frame: ``LOCAL_WINDOW`` px and ``CONTEXT_WINDOW`` px wide, both
@@ -25,7 +23,7 @@ candidates, aligned with the gripper, picks the matching one more often.
    objects whose top-1 matches and the Table II figures (our protocol) of
    the detector's ranking, the re-scored one and the grasp oracle.
 
-    python benchmarks/grasp_rescorer.py CHECKPOINT --data data --pipeline recipe --minutes 10 --json OUT.json
+    python lab/tools/grasp_rescorer.py CHECKPOINT --data data --pipeline recipe --minutes 10 --json OUT.json
 """
 
 from __future__ import annotations
@@ -44,13 +42,11 @@ import numpy as np
 import torch
 from torch import nn
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from grasp_ranking import claimed_objects, detect, grasp_oracle, table_figures
-
 from osgd.contract.samples import iter_samples, sample_shards
 from osgd.contract.taxonomy import CATEGORIES
 from togcrf.checkpoint import load_checkpoint
 from togcrf.data import normalise_depth
+from togcrf.diagnostics import claimed_objects, detect, grasp_oracle, table_figures
 from togcrf.metrics import Detections, GroundTruth, grasp_match_matrix
 
 LOG = logging.getLogger("grasp_rescorer")

@@ -1,29 +1,16 @@
-"""The order oracle of ``benchmarks/grasp_ranking.py`` on a hand-made case (the docs quote its figures)."""
+"""The order oracle of :mod:`togcrf.diagnostics` on a hand-made case (the docs quote its figures)."""
 
 from __future__ import annotations
-
-import importlib.util
-from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
 
 from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, TASKS
+from togcrf import diagnostics
 from togcrf.metrics import Detections, GroundTruth, TableTwoEvaluator
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "grasp_ranking.py"
 
 KNIFE = CATEGORY_INDEX["knife"]
 GRASP = [20.0, 20.0, 12.0, 4.0, np.pi / 2]
-
-
-@pytest.fixture(scope="module")
-def grasp_ranking() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("grasp_ranking", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _one_knife() -> GroundTruth:
@@ -56,12 +43,12 @@ def _result(pairs: list[tuple[Detections, GroundTruth]]) -> dict:
     return evaluator.result()
 
 
-def test_order_oracle_ranks_the_right_top1_first_and_keeps_other_scores(grasp_ranking: ModuleType) -> None:
+def test_order_oracle_ranks_the_right_top1_first_and_keeps_other_scores() -> None:
     pairs = _pairs()
     before = _result(pairs)
     # detector: 0.9 grasp miss (FP), 0.7 false box (FP), 0.5 right: recall 1/2 at precision 1/3
     assert before["mAP-G"] == pytest.approx(0.5 / 3)
-    oracle = grasp_ranking.order_oracle(pairs)
+    oracle = diagnostics.order_oracle(pairs)
     assert oracle[0][0].scores.tolist() == [0.5, 0.7]  # the miss takes the lower score, the false box keeps its own
     assert oracle[1][0].scores.tolist() == [0.9]
     after = _result(oracle)
@@ -69,8 +56,8 @@ def test_order_oracle_ranks_the_right_top1_first_and_keeps_other_scores(grasp_ra
     assert after["mAP"] == pytest.approx(before["mAP"])  # box TP, FP, TP in both orders
 
 
-def test_handed_out_follows_any_key(grasp_ranking: ModuleType) -> None:
-    reversed_order = grasp_ranking.handed_out(
+def test_handed_out_follows_any_key() -> None:
+    reversed_order = diagnostics.handed_out(
         _pairs(), lambda detections, truth, may_claim, detection: -detections.scores[detection])
     assert reversed_order[0][0].scores.tolist() == [0.5, 0.7]
     assert reversed_order[1][0].scores.tolist() == [0.9]

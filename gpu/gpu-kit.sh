@@ -1,5 +1,5 @@
-# Sourced by the scripts that run on a lent GPU machine (lab/results/*/run*.sh), from the repository root:
-# unpacks the offline kit (pipelines/gpu-offline-kit.sh; $1, default .gpu/site-py312.tar.xz) where the dataset
+# Sourced, from the repository root, by a script that runs on a lent GPU machine (`source gpu/gpu-kit.sh [KIT]`):
+# unpacks the offline kit (gpu/gpu-offline-kit.sh; $1, default .gpu/site-py312.tar.xz) where the dataset
 # stages' dependencies are missing, and puts the checkout on PYTHONPATH.
 kit=${1:-.gpu/site-py312.tar.xz}
 if [ -f "$kit" ] && ! python3 -c "import pybullet, trimesh, coacd, embreex, pydantic" 2>/dev/null; then

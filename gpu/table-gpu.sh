@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Table II on a GPU lease (issues #21 and #15), in steps that resume:
+# Table II on a GPU lease, in steps that resume:
 #
 #   install     the dependencies, from an offline site-packages tarball where the machine has no network
-#   data        the pipeline's dataset (PIPELINE: pipelines/gpu.toml, 8,000 piles; or recipe, the CPU recipe's)
+#   data        the pipeline's dataset (PIPELINE, a config in pipelines/: gpu, 8,000 piles; or recipe-pairs96,
+#               the CPU recipe's)
 #   throughput  the paper's configuration (ResNet-101, batch 2, SGD) beside the GPU recipe, 40 s each
 #   train       every job (a seed and a model) side by side on the one GPU, each
 #               `togcrf reproduce --scale SCALE TRAIN_OPTIONS` in its own process group (training, then
@@ -15,17 +16,18 @@
 # minutes; call it again until it prints "table-gpu: done". Training runs on in the background between calls
 # (setsid), and an interrupted training resumes from its last checkpoint.
 #
-#   make table-gpu            (or pipelines/table-gpu.sh): TOG and TOG-CRFs on pipelines/gpu.toml, 11 minutes each
-#   PIPELINE=recipe SCALE=cpu THROUGHPUT=0 TRAIN_OPTIONS="--epochs 6 --time-budget 0 --workers 1" WORKERS=16 \
-#   JOBS="0:fcgn-task 0:tog 0:tog-crfs-omega 0:tog-crfs-mu 0:tog-crfs 1:tog 1:tog-crfs" pipelines/table-gpu.sh
+#   make table-gpu            (or gpu/table-gpu.sh): TOG and TOG-CRFs on pipelines/gpu.toml, 11 minutes each
+#   PIPELINE=recipe-pairs96 SCALE=cpu THROUGHPUT=0 TRAIN_OPTIONS="--epochs 6 --time-budget 0 --workers 1" WORKERS=16 \
+#   JOBS="0:fcgn-task 0:tog 0:tog-crfs-omega 0:tog-crfs-mu 0:tog-crfs 1:tog 1:tog-crfs" gpu/table-gpu.sh
 #               the CPU recipe's Table II, all five rows and a second seed, at an epoch budget instead of minutes
 #
-# Variables: DATA (data), PIPELINE (gpu), SCALE (gpu), JOBS (seed:model pairs, "0:tog 0:tog-crfs"),
-# RUNS (runs/table-gpu; a job's run dir is RUNS/seedS/MODEL), BUDGET (minutes of training per model, 11),
-# TRAIN_OPTIONS (more `togcrf reproduce` options; default --time-budget BUDGET), THROUGHPUT (1: measure the
-# paper's configuration and the GPU recipe first), DEADLINE (seconds, 570), RESULTS (the small result files,
+# Variables: DATA (data), PIPELINE (gpu: pipelines/PIPELINE.toml), SCALE (gpu), JOBS (seed:model pairs,
+# "0:tog 0:tog-crfs"), RUNS (runs/table-gpu; a job's run dir is RUNS/seedS/MODEL), BUDGET (minutes of training per
+# model, 11), TRAIN_OPTIONS (more `togcrf reproduce` options; default --time-budget BUDGET), THROUGHPUT (1: measure
+# the paper's configuration and the GPU recipe first), DEADLINE (seconds, 570), RESULTS (the small result files,
 # $RUNS/results; packed into $OUT/results.tar.gz when OUT is set), SITE (offline site-packages tarball,
-# .gpu/site-py312.tar.xz), PYTHON (python3), WORKERS (dataset worker processes, one per core).
+# .gpu/site-py312.tar.xz, made by gpu/gpu-offline-kit.sh), PYTHON (python3), WORKERS (dataset worker processes,
+# one per core).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 started=$SECONDS

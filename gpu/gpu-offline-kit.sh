@@ -1,15 +1,13 @@
 #!/usr/bin/env bash
-# The offline install kit of pipelines/table-gpu.sh: the dataset stages' dependencies that a GPU image with
-# torch, numpy, scipy, pyarrow, typer, opencv and matplotlib lacks, as one stripped site-packages tarball, for
-# a machine with no network (issue #21). Run it where pip reaches PyPI:
+# The offline install kit of gpu/table-gpu.sh and gpu/gpu-kit.sh: the dataset stages' dependencies that a GPU
+# image with torch, numpy, scipy, pyarrow, typer, opencv and matplotlib lacks, as one stripped site-packages
+# tarball, for a machine with no network. Run it where pip reaches PyPI:
 #
-#   pipelines/gpu-offline-kit.sh [PYTHON_VERSION]      # default 3.12; writes .gpu/site-py<version>.tar.xz
+#   gpu/gpu-offline-kit.sh [PYTHON_VERSION]      # default 3.12; writes .gpu/site-py<version>.tar.xz
 #
 # Official pybullet wheels stop at CPython 3.11; for 3.12 the kit takes pybullet-arm64 3.2.8, a rebuild of the
-# same Bullet sources that installs the same `pybullet` module (a 2,000-step contact simulation gave
-# bit-identical poses against the official 3.2.7). Debug symbols are stripped (pybullet: 134 MB -> 8 MB), and
-# pybullet's example data and environments, which osgd never uses, are left out. The tarball for 3.12 is
-# about 15 MB.
+# same Bullet sources that installs the same `pybullet` module. Debug symbols are stripped, and pybullet's
+# example data and environments, which osgd never uses, are left out.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VERSION=${1:-3.12}
@@ -35,4 +33,4 @@ rm -rf "$WORK"/site/{pybullet_data,pybullet_envs,pybullet_examples,pybullet_robo
 find "$WORK/site" -name '*.so*' -type f -exec strip --strip-unneeded {} + 2>/dev/null || true
 mkdir -p "$KIT"
 tar -C "$WORK/site" -cJf "$KIT/site-py$TAG.tar.xz" .
-echo "wrote $KIT/site-py$TAG.tar.xz ($(du -h "$KIT/site-py$TAG.tar.xz" | cut -f1)); pipelines/table-gpu.sh unpacks it"
+echo "wrote $KIT/site-py$TAG.tar.xz ($(du -h "$KIT/site-py$TAG.tar.xz" | cut -f1)); gpu/table-gpu.sh unpacks it"
