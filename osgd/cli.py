@@ -36,6 +36,7 @@ from osgd.errors import describe
 from osgd.executor import BACKENDS, Executor, ExecutorError, SerialExecutor, make_executor
 from osgd.pipeline import (
     COMMAND_STAGES,
+    STATUS_EXIT_CODES,
     MissingInputError,
     PlanError,
     load_pipeline,
@@ -43,6 +44,7 @@ from osgd.pipeline import (
     run_stages,
     stage_by_name,
     stages,
+    status_exit_code,
 )
 from osgd.progress import LineProgress, format_duration
 from osgd.stage import ItemFailure, StageReport
@@ -211,26 +213,51 @@ def _run(config_path: Path, overrides: list[str] | None, names: tuple[str, ...],
     if console.is_terminal:
         progress, on_stage, on_item = _bar_progress()
     else:
-        progress = LineProgress(_say)
+        progress = LineProgress(_unrepeated(_say))
         on_stage, on_item = progress.on_stage, progress.on_item
     try:
         with progress:
             reports = run_stages(config, store, executor, names, force=force, on_item=on_item, on_stage=on_stage)
     except (MissingInputError, PlanError) as error:
+        _print_reports(getattr(error, "reports", []), store)
         _fail(str(error))
     except OSError as error:  # writing the manifest: a full disk, a folder gone read-only
         _fail(write_problem(error))
     finally:
         _close(executor)
+    failures = _print_reports(reports, store)
+    _say(f"data dir: {store.root}   manifest: {store.manifest_path(config.pipeline.name)}")
+    if failures:
+        raise typer.Exit(1)
+
+
+def _unrepeated(write: Callable[[str], None]) -> Callable[[str], None]:
+    """``write``, less a line equal to the one before it.
+
+    A stage's progress line is written when it starts and again every interval; until its
+    first item ends the two are the same text (``checks: 10 items``), printed twice or more.
+    """
+    last: list[str] = []
+
+    def write_new(line: str) -> None:
+        if last and last[0] == line:
+            return
+        last[:] = [line]
+        write(line)
+
+    return write_new
+
+
+def _print_reports(reports: list[StageReport], store: ShardStore) -> list[tuple[str, ItemFailure]]:
+    """Each stage's report, the stage times and the table of failed items; the failures."""
     for report in reports:
         _print_report(report, store)
     if len(reports) > 1:
         _print_stage_times(reports)
     failures = [(report.stage, failure) for report in reports for failure in report.failures]
-    _say(f"data dir: {store.root}   manifest: {store.manifest_path(config.pipeline.name)}")
     if failures:
         _print_failures(failures)
-        raise typer.Exit(1)
+    return failures
 
 
 def _print_report(report: StageReport, store: ShardStore) -> None:
@@ -341,10 +368,16 @@ def show_config(config: ConfigOption, set_: SetOption = None) -> None:
     typer.echo(config_to_toml(pipeline), nl=False)
 
 
-@app.command("status")
+_STATUS_CODES_HELP = ", ".join(f"{code} {kind}" for kind, code in STATUS_EXIT_CODES.items())
+
+
+@app.command("status", help=(
+    "Per stage: shards done, missing, failed (items the last run could not build), corrupt (failing their "
+    "checksum or holding another key) and stale (on disk, not in this plan).\n\n"
+    f"Exit code: 0 when every planned shard is done and nothing is failed, corrupt or stale; else the sum of "
+    f"{_STATUS_CODES_HELP} (e.g. 20: missing and corrupt shards), so that a script or CI can gate on it. "
+    "2: a bad config or data dir; 1: an unexpected error."))
 def status(config: ConfigOption, set_: SetOption = None) -> None:
-    """Per stage: shards done, missing, failed (items the last run could not build),
-    corrupt (failing their checksum or holding another key) and stale (on disk, not in this plan)."""
     pipeline = _load(config, set_)
     store = _store(writable=False)
     try:
@@ -357,6 +390,12 @@ def status(config: ConfigOption, set_: SetOption = None) -> None:
     for row in rows:
         table.add_row(row.stage, str(row.done), str(row.missing), str(row.failed), str(row.corrupt), str(row.stale))
     Console().print(table)
+    code = status_exit_code(rows)
+    if code:
+        found = ", ".join(f"{sum(getattr(row, kind) for row in rows)} {kind}"
+                          for kind in STATUS_EXIT_CODES if any(getattr(row, kind) for row in rows))
+        _say(f"{pipeline.pipeline.name}: not complete: {found} (exit {code})", style="yellow")
+        raise typer.Exit(code)
 
 
 def _call_with_store(function: Callable[..., Any], **kwargs: Any) -> None:
@@ -424,12 +463,16 @@ def show_sample(sample_id: str, out: OutOption) -> None:
 @app.command("export")
 def export(
     out_dir: Annotated[Path, typer.Argument(help="Folder to write into.")],
-    format_: Annotated[str, typer.Option("--format", help="osgd, cornell or coco.")] = "osgd",
+    format_: Annotated[str, typer.Option(
+        "--format", help="osgd, cornell, coco, or hf (a Hugging Face dataset folder: Parquet per split, Image "
+        "features, a dataset card; datasets.load_dataset(OUT) opens it).")] = "osgd",
+    pipeline: Annotated[str | None, typer.Option(
+        help="Whose samples (that pipeline's manifest); default: the data dir's only pipeline with samples.")] = None,
 ) -> None:
     """Write the samples in a format peers' tools read."""
     from osgd.samples.export import export as write  # noqa: PLC0415 (keeps --help fast)
 
-    _call_with_store(write, out_dir=out_dir, format=format_)
+    _call_with_store(write, out_dir=out_dir, format=format_, pipeline=pipeline)
 
 
 def _seed_worker_hashes() -> None:

@@ -22,9 +22,11 @@ folder.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
+import stat
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,6 +35,7 @@ from typing import Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from osgd.errors import InputError
 from osgd.stage import StageParams
 
 _Model = TypeVar("_Model", bound=BaseModel)
@@ -271,6 +274,98 @@ def build_config(
     return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None, executor)
 
 
+#: The largest pipeline config read, bytes (a config is a few kB; more is a file given by mistake).
+MAX_CONFIG_BYTES = 16 * 2**20
+#: The largest input file (mesh, sidecar, annotation) read by default, bytes; ``OSGD_MAX_INPUT_BYTES`` overrides it.
+DEFAULT_MAX_INPUT_BYTES = 2 * 2**30
+
+_FILE_KINDS = (
+    (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
+)
+
+
+def max_input_bytes() -> int:
+    """The size limit of an input file: ``OSGD_MAX_INPUT_BYTES`` (bytes, > 0), else :data:`DEFAULT_MAX_INPUT_BYTES`."""
+    try:
+        value = int(os.environ.get("OSGD_MAX_INPUT_BYTES", DEFAULT_MAX_INPUT_BYTES))
+    except ValueError:
+        return DEFAULT_MAX_INPUT_BYTES
+    return value if value > 0 else DEFAULT_MAX_INPUT_BYTES
+
+
+def _size_text(size: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if size < 1024 or unit == "GiB":
+            return f"{size:.0f} {unit}" if unit == "bytes" else f"{size:.1f} {unit}"
+        size /= 1024
+    return f"{size:.1f} GiB"
+
+
+def _stat_problem(path: Path, error: OSError) -> str:
+    """Why ``os.stat`` failed on a path: a symbolic link loop, a broken link, a missing file, no permission."""
+    if error.errno == errno.ELOOP:
+        return "a symbolic link loop (too many levels of symbolic links)"
+    if path.is_symlink():
+        try:
+            target = os.readlink(path)
+        except OSError:
+            target = "?"
+        return f"a broken symbolic link (to {target!r}, which cannot be reached: {error.strerror or error})"
+    return str(error.strerror or error)
+
+
+def file_problem(path: str | os.PathLike[str], max_bytes: int | None = None) -> str | None:
+    """Why ``path`` cannot be read as an input file; None when it is a readable regular file of a bounded size.
+
+    Reads nothing: only ``stat`` and ``access``, so a FIFO or a device is never opened (opening a FIFO blocks).
+
+    Parameters
+    ----------
+    max_bytes : int, optional
+        The size limit; default :func:`max_input_bytes`.
+    """
+    path = Path(path)
+    limit = max_input_bytes() if max_bytes is None else max_bytes
+    try:
+        info = os.stat(path)
+    except OSError as error:
+        return _stat_problem(path, error)
+    for test, kind in _FILE_KINDS:
+        if test(info.st_mode):
+            return f"{kind}, not a regular file"
+    if not stat.S_ISREG(info.st_mode):
+        return "not a regular file"
+    if info.st_size > limit:
+        return f"{_size_text(info.st_size)}, more than the {_size_text(limit)} an input file may have"
+    if not os.access(path, os.R_OK):
+        return "permission denied (not readable)"
+    return None
+
+
+def read_input_file(path: str | os.PathLike[str], max_bytes: int | None = None) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` (default :func:`max_input_bytes`).
+
+    Raises
+    ------
+    InputError
+        Naming the file: not there, not a regular file (a FIFO, a device, a folder), too big, unreadable.
+    """
+    path = Path(path)
+    limit = max_input_bytes() if max_bytes is None else max_bytes
+    problem = file_problem(path, limit)
+    if problem is not None:
+        raise InputError(path, problem)
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read(limit + 1)
+    except OSError as error:
+        raise InputError(path, str(error.strerror or error)) from error
+    if len(data) > limit:  # it grew since the check
+        raise InputError(path, f"more than the {_size_text(limit)} an input file may have")
+    return data
+
+
 def load_config(
     path: str | os.PathLike[str],
     stage_params: Mapping[str, type[StageParams]],
@@ -278,16 +373,27 @@ def load_config(
 ) -> PipelineConfig:
     """Read and validate a pipeline TOML file.
 
+    Only a regular file of at most :data:`MAX_CONFIG_BYTES` is read (not
+    ``/dev/zero``, a FIFO or a huge file given by mistake).
+
     Raises
     ------
     ConfigError
-        If the file is missing, is not valid TOML, or holds a bad value.
+        If the file is missing, is no regular file of a bounded size, is not
+        valid UTF-8 TOML, or holds a bad value.
     """
     path = Path(path)
+    if not os.path.lexists(path):
+        raise ConfigError(f"{path}: no such pipeline config")
     try:
-        document = tomllib.loads(path.read_text())
-    except FileNotFoundError as error:
-        raise ConfigError(f"{path}: no such pipeline config") from error
+        data = read_input_file(path, MAX_CONFIG_BYTES)
+    except InputError as error:
+        raise ConfigError(f"{path}: cannot be read as a pipeline config: {error.cause}") from error
+    try:
+        document = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: not a pipeline config: not UTF-8 text ({error.reason} at byte "
+                          f"{error.start}); a config is a TOML file such as pipelines/default.toml") from error
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from error
     return build_config(

@@ -19,7 +19,11 @@ import hashlib
 import logging
 import multiprocessing
 import os
+import signal
 import socket
+import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -91,13 +95,56 @@ class SerialExecutor:
             yield index, call_safely(function, task)
 
 
+#: Seconds between two looks of a worker's watchdog at its parent.
+WATCHDOG_INTERVAL = 1.0
+
+
+def _set_parent_death_signal() -> bool:
+    """Ask Linux to send this process SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``); whether it could."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes  # noqa: PLC0415 (Linux only)
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) == 0  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return False
+
+
+def _watch_parent(parent: int, interval: float) -> None:
+    """End this process as soon as its parent is no longer ``parent`` (it died: the process was re-parented)."""
+    while True:
+        if os.getppid() != parent:
+            os._exit(1)
+        time.sleep(interval)
+
+
+def die_with_parent(parent: int, interval: float = WATCHDOG_INTERVAL) -> None:
+    """A worker initializer: the worker ends when its parent dies, whatever kills the parent (SIGKILL, OOM).
+
+    On Linux the kernel kills the worker at once (the parent-death signal);
+    everywhere a daemon thread checks every ``interval`` seconds that the
+    parent is still ``parent`` and ends the worker otherwise, which also
+    covers a parent that died before the signal was set. A worker blocked
+    on its task pipe therefore never outlives the main process, and neither
+    does multiprocessing's resource tracker, which ends once no process
+    holds its pipe.
+    """
+    _set_parent_death_signal()
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent, interval), name="osgd-parent-watchdog", daemon=True).start()
+
+
 class ProcessPoolExecutor:
     """Runs tasks in a pool of local worker processes.
 
     Workers are started with ``spawn``: physics and rendering libraries
     (pybullet, EGL) hold process-wide state that must not be inherited by
     ``fork``. Each worker is reused across tasks, so a stage can keep one
-    physics client per worker.
+    physics client per worker. Workers end when the process that started
+    them dies, however it dies (:func:`die_with_parent`): no orphans.
 
     Parameters
     ----------
@@ -117,7 +164,8 @@ class ProcessPoolExecutor:
             return
         context = multiprocessing.get_context("spawn")
         with concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(self.workers, len(tasks)), mp_context=context
+            max_workers=min(self.workers, len(tasks)), mp_context=context,
+            initializer=die_with_parent, initargs=(os.getpid(),),
         ) as pool:
             futures = {pool.submit(call_safely, function, task): index for index, task in enumerate(tasks)}
             for future in concurrent.futures.as_completed(futures):

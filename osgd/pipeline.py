@@ -70,7 +70,12 @@ def load_pipeline(path: str | Path, overrides: Sequence[str] = ()) -> PipelineCo
 
 
 class PlanError(RuntimeError):
-    """A stage cannot plan its work (a models folder that is not there...); one line."""
+    """A stage cannot plan its work (a models folder that is not there...); one line.
+
+    Raised by :func:`run_stages`, it carries the reports of the stages run before (``reports``).
+    """
+
+    reports: list[StageReport]
 
 
 def _plan_stage(
@@ -110,7 +115,9 @@ def plan_pipeline(
 
 
 class MissingInputError(RuntimeError):
-    """A stage was asked to run before the stages it reads from."""
+    """A stage was asked to run before the stages it reads from; carries ``reports`` as :class:`PlanError` does."""
+
+    reports: list[StageReport]
 
 
 def _manifest_stage_entry(
@@ -201,8 +208,24 @@ def run_stages(
     ordered = list(stages())
     last = max((index for index, stage in enumerate(ordered) if stage.name in names), default=-1)
     planned: dict[str, list[PlannedShard]] = {}
-    reports = []
-    for stage in ordered[: last + 1]:
+    reports: list[StageReport] = []
+    try:
+        _run_in_order(config, store, executor, names, ordered[: last + 1], planned, reports, recorded,
+                      failed_before, force=force, on_item=on_item, on_stage=on_stage)
+    except (MissingInputError, PlanError) as error:
+        error.reports = reports  # what was built before the stage that could not plan (the CLI reports it)
+        raise
+    return reports
+
+
+def _run_in_order(
+    config: PipelineConfig, store: ShardStore, executor: Executor, names: Sequence[str], ordered: Sequence[Stage],
+    planned: dict[str, list[PlannedShard]], reports: list[StageReport], recorded: dict[str, Any],
+    failed_before: Mapping[str, Collection[str]], *, force: bool,
+    on_item: Callable[[str, str, str], None] | None, on_stage: Callable[[str, int], None] | None,
+) -> None:
+    """The loop of :func:`run_stages`: plan each stage, run the named ones, write the manifest after each."""
+    for stage in ordered:
         if stage.name not in names:
             planned[stage.name] = _plan_stage(stage, config, planned, failed_before.get(stage.name, ()))
             continue
@@ -233,7 +256,6 @@ def run_stages(
                 "stages": recorded,
             },
         )
-    return reports
 
 
 @dataclass(frozen=True)
@@ -248,6 +270,15 @@ class StageStatus:
     corrupt: int
     stale: int
     failed: int = 0
+
+
+#: ``osgd status``'s exit code is the sum of these, one per kind of problem found in any stage; 0: all done.
+STATUS_EXIT_CODES: dict[str, int] = {"missing": 4, "failed": 8, "corrupt": 16, "stale": 32}
+
+
+def status_exit_code(rows: Sequence[StageStatus]) -> int:
+    """``osgd status``'s exit code for its rows: 0 when every shard is done, else :data:`STATUS_EXIT_CODES` summed."""
+    return sum(code for kind, code in STATUS_EXIT_CODES.items() if any(getattr(row, kind) for row in rows))
 
 
 def pipeline_status(config: PipelineConfig, store: ShardStore) -> list[StageStatus]:

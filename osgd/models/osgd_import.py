@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+import os
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -33,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from osgd.config import file_problem
 from osgd.contract.taxonomy import CATEGORIES, task_from_file_stem
 from osgd.errors import InputError
 
@@ -145,6 +147,35 @@ def list_model_folders(models_dir: Path) -> list[Path]:
     if not models_dir.is_dir():
         raise InputError(models_dir, "no such folder; set [models] osgd_dir to a folder in the OSGD layout")
     return sorted(path for path in models_dir.iterdir() if (path / MESH_PATH).is_file())
+
+
+def unreadable_model_folders(models_dir: Path) -> dict[Path, tuple[str, str]]:
+    """Entries of an OSGD models dir that cannot be read: a symbolic link loop, a broken link, a folder whose
+    ``model`` link is broken or whose mesh is no readable regular file of a bounded size.
+
+    Returns
+    -------
+    dict of entry to (file relative to the entry, or the entry's own name; the cause)
+
+    Raises
+    ------
+    InputError
+        If the folder does not exist.
+    """
+    models_dir = Path(models_dir)
+    if not models_dir.is_dir():
+        raise InputError(models_dir, "no such folder; set [models] osgd_dir to a folder in the OSGD layout")
+    problems: dict[Path, tuple[str, str]] = {}
+    for entry in sorted(models_dir.iterdir()):
+        if not entry.exists():
+            problems[entry] = (entry.name, file_problem(entry) or "cannot be read")
+        elif not entry.is_dir():
+            continue
+        elif (entry / "model").is_symlink() and not (entry / "model").is_dir():
+            problems[entry] = ("model", file_problem(entry / "model") or "not a folder")
+        elif os.path.lexists(entry / MESH_PATH) and file_problem(entry / MESH_PATH):
+            problems[entry] = (MESH_PATH.as_posix(), str(file_problem(entry / MESH_PATH)))
+    return problems
 
 
 def source_files(model_dir: Path) -> list[Path]:

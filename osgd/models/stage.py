@@ -35,6 +35,7 @@ import collections
 import hashlib
 import json
 import logging
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +46,7 @@ import pyarrow as pa
 import trimesh
 from pydantic import Field
 
+from osgd.config import file_problem
 from osgd.contract.schemas import MODELS, empty_table
 from osgd.contract.shards import ShardRecord, file_sha256
 from osgd.contract.taxonomy import CATEGORIES, UNKNOWN_PART
@@ -108,6 +110,18 @@ def item_rng(seed: int, item_id: str) -> np.random.Generator:
 
 def _hashes(paths: Sequence[Path], base: Path) -> dict[str, str]:
     return {path.relative_to(base).as_posix(): file_sha256(path) for path in paths if path.is_file()}
+
+
+def _unreadable(paths: Sequence[Path], base: Path) -> dict[str, str]:
+    """The files among ``paths`` that are there but cannot be read (a symbolic link loop, a broken link, a FIFO,
+    no permission, too big), relative to ``base``, with the cause; files that are not there are left to the build."""
+    problems = {}
+    for path in paths:
+        if os.path.lexists(path):
+            problem = file_problem(path)
+            if problem is not None:
+                problems[path.relative_to(base).as_posix()] = problem
+    return problems
 
 
 def _check_hashes(expected: Mapping[str, str], base: Path, item_id: str) -> None:
@@ -192,34 +206,53 @@ class ModelsStage(Stage):
                     payload = {**common, "source": "procedural", "category": category, "index": index}
                     items.append(ModelWorkItem(f"procedural/{category}_{index:02d}", payload))
         if "osgd" in params.sources and params.osgd_dir:
-            for folder in osgd_import.list_model_folders(Path(params.osgd_dir)):
-                payload = {
-                    **common,
-                    "source": "osgd",
-                    "category": _folder_category(folder),
-                    "files": _hashes(osgd_import.source_files(folder), folder),
-                }
-                items.append(ModelWorkItem(f"osgd/{folder.name}", payload, source_path=str(folder)))
+            items += self._plan_osgd(Path(params.osgd_dir), common)
         if "user" in params.sources and params.user_dir:
-            base = Path(params.user_dir)
-            for mesh_path in user.list_user_meshes(base):
-                sidecar = user.sidecar_path(mesh_path)
-                files = [mesh_path, sidecar, *user.grasp_file_paths(sidecar)]
-                payload = {
-                    **common,
-                    "source": "user",
-                    "mesh": mesh_path.name,
-                    "files": _hashes(files, base),
-                    "automatic_parts": parts.VERSION,
-                    "scan_repair": decomposition.SCAN_REPAIR_VERSION,
-                }
-                items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
+            items += self._plan_user(Path(params.user_dir), common)
+        return items
+
+    @staticmethod
+    def _plan_osgd(models_dir: Path, common: Mapping[str, Any]) -> list[WorkItem]:
+        """One item per model folder; a folder whose files cannot be read is an item that fails, naming them."""
+        broken = osgd_import.unreadable_model_folders(models_dir)
+        items: list[WorkItem] = []
+        for folder in sorted([*osgd_import.list_model_folders(models_dir), *broken], key=lambda path: path.name):
+            payload = {**common, "source": "osgd", "category": _folder_category(folder)}
+            files = osgd_import.source_files(folder) if folder not in broken else []
+            problems = dict([broken[folder]]) if folder in broken else _unreadable(files, folder)
+            if problems:
+                payload["unreadable"] = problems
+            else:
+                payload["files"] = _hashes(files, folder)
+            items.append(ModelWorkItem(f"osgd/{folder.name}", payload, source_path=str(folder)))
+        return items
+
+    @staticmethod
+    def _plan_user(base: Path, common: Mapping[str, Any]) -> list[WorkItem]:
+        """One item per mesh file; a mesh whose files cannot be read is an item that fails, naming them."""
+        items: list[WorkItem] = []
+        for mesh_path in user.list_user_meshes(base):
+            sidecar = user.sidecar_path(mesh_path)
+            problems = _unreadable([mesh_path, sidecar], base)
+            files = [mesh_path, sidecar, *([] if problems else user.grasp_file_paths(sidecar))]
+            problems = problems or _unreadable(files, base)
+            payload = {**common, "source": "user", "mesh": mesh_path.name}
+            if problems:
+                payload["unreadable"] = problems
+            else:
+                payload.update({"files": _hashes(files, base), "automatic_parts": parts.VERSION,
+                                "scan_repair": decomposition.SCAN_REPAIR_VERSION})
+            items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
         return items
 
     # -- building ---------------------------------------------------------------------
     def _read_source(self, item: WorkItem) -> _SourceModel:
         payload = item.payload
         source = payload["source"]
+        if payload.get("unreadable"):
+            relative, cause = next(iter(sorted(payload["unreadable"].items())))
+            location = Path(getattr(item, "source_path", ""))
+            raise InputError(location if relative == location.name else location / relative, cause)
         rng = item_rng(payload["seed"], item.item_id)
         if source == "procedural":
             generated = procedural.generate(payload["category"], rng)

@@ -39,6 +39,7 @@ import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from osgd.config import MAX_CONFIG_BYTES, read_input_file
 from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, TASKS, UNKNOWN_PART, task_from_file_stem
 from osgd.errors import InputError
 from osgd.models.osgd_import import AnnotatedPair, blender_to_obj
@@ -147,7 +148,8 @@ def sidecar_path(mesh_path: Path) -> Path:
 
 
 def list_user_meshes(user_dir: Path) -> list[Path]:
-    """Mesh files directly in ``user_dir``, sorted by name.
+    """Mesh files directly in ``user_dir``, sorted by name: every entry with a mesh suffix that is not a folder,
+    also those that cannot be read (a broken link, a FIFO), which the models stage names as failed items.
 
     Raises
     ------
@@ -157,7 +159,7 @@ def list_user_meshes(user_dir: Path) -> list[Path]:
     user_dir = Path(user_dir)
     if not user_dir.is_dir():
         raise InputError(user_dir, "no such folder; set [models] user_dir to a folder of meshes with sidecars")
-    return sorted(path for path in user_dir.iterdir() if path.is_file() and path.suffix.lower() in MESH_SUFFIXES)
+    return sorted(path for path in user_dir.iterdir() if path.suffix.lower() in MESH_SUFFIXES and not path.is_dir())
 
 
 def parse_sidecar(text: str, origin: str = "<sidecar>") -> Sidecar:
@@ -200,7 +202,12 @@ def read_sidecar(path: Path) -> Sidecar:
         raise InputError(
             path, "no sidecar; every user mesh needs one naming at least its category and length (see docs/models.md)"
         )
-    return parse_sidecar(path.read_text(), str(path))
+    data = read_input_file(path, MAX_CONFIG_BYTES)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise SidecarError(path, f"not UTF-8 text ({error.reason} at byte {error.start}); a sidecar is TOML") from error
+    return parse_sidecar(text, str(path))
 
 
 def _toml_value(value: object) -> str:

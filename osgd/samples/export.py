@@ -1,4 +1,7 @@
-"""Write samples in formats peers' tools read: osgd, cornell, coco.
+"""Write samples in formats peers' tools read: osgd, cornell, coco, hf.
+
+``hf`` (a Hugging Face dataset folder, :mod:`osgd.export.hf`) writes Parquet
+files per split and a dataset card; what follows is about the other three.
 
 Every format writes each sample's noisy depth as a 16-bit PNG of
 millimetres (0 = no reading), beside its annotations, under
@@ -40,7 +43,7 @@ from osgd.samples.projection import rectangle_corners
 from osgd.store import ShardStore
 
 #: Formats :func:`export` writes.
-FORMATS: tuple[str, ...] = ("osgd", "cornell", "coco")
+FORMATS: tuple[str, ...] = ("osgd", "cornell", "coco", "hf")
 
 
 def _write_depth(sample: Sample, path: Path) -> None:
@@ -90,15 +93,17 @@ def _coco_entries(sample: Sample, image_id: int, first_annotation: int, file_nam
     return image, annotations
 
 
-def export(store: ShardStore, out_dir: str | Path, format: str = "osgd") -> str:
+def export(store: ShardStore, out_dir: str | Path, format: str = "osgd", pipeline: str | None = None) -> str:
     """Write every verified sample of a data dir in one format.
 
     Parameters
     ----------
     store : ShardStore
     out_dir : path
-        Created if needed; files go under ``<out_dir>/<split>/``.
-    format : {"osgd", "cornell", "coco"}
+        Created if needed; files go under ``<out_dir>/<split>/`` (``hf``: see :mod:`osgd.export.hf`).
+    format : {"osgd", "cornell", "coco", "hf"}
+    pipeline : str, optional
+        Whose samples (its manifest's shards); default: the data dir's only pipeline with samples.
 
     Returns
     -------
@@ -114,11 +119,15 @@ def export(store: ShardStore, out_dir: str | Path, format: str = "osgd") -> str:
     """
     if format not in FORMATS:
         raise ValueError(f"unknown export format {format!r}; choose one of {list(FORMATS)}")
+    if format == "hf":
+        from osgd.export.hf import export_hf  # noqa: PLC0415 (one format of four)
+
+        return export_hf(store, out_dir, pipeline)
     out = Path(out_dir)
     counts: dict[str, int] = {}
     coco: dict[str, dict] = {}
     next_annotation = 1
-    for sample in iter_samples(store.root):
+    for sample in iter_samples(store.root, pipeline):
         folder = out / sample.split
         folder.mkdir(parents=True, exist_ok=True)
         counts[sample.split] = counts.get(sample.split, 0) + 1
