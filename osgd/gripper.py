@@ -176,7 +176,7 @@ class Gripper:
 
         Value for value the corners ``centre + half * (+-1, +-1, +-1)`` of
         ``boxes(opening)`` for each opening, with the same operations
-        (issue #22: one call per grasp took 8 % of the samples stage).
+        (one call per grasp is slow; the whole set is computed at once).
 
         Parameters
         ----------

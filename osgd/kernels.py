@@ -1,14 +1,14 @@
 """The processor-dependent kernels osgd pins, so that shards are the same on any x86-64.
 
 Three libraries pick their kernels by processor when they load and round
-differently from one kernel to another (measured on the golden pipeline,
-docs/architecture.md "Across machines"):
+differently from one kernel to another (docs/architecture.md, "Across
+machines"):
 
 - **OpenBLAS** (numpy's and scipy's BLAS and LAPACK): its ``SkylakeX`` kernels
   on an AVX-512 processor and its ``Haswell`` / ``Zen`` kernels on an AVX2 one
   give other last bits in ``eigh`` (the principal axes of inertia every
-  pybullet body is built with), ``norm``, ``dot`` and ``@``. That alone made
-  18 of the 34 golden shards differ between an AVX-512 and an AVX2 EPYC.
+  pybullet body is built with), ``norm``, ``dot`` and ``@``. That alone makes
+  shards differ between an AVX-512 and an AVX2 processor.
   :func:`pin_kernels` sets ``OPENBLAS_CORETYPE=Haswell`` on every processor
   that has AVX2 and FMA (x86-64-v3: Intel since Haswell, AMD since Zen), and
   ``OPENBLAS_NUM_THREADS=1`` so that no reduction is split by core count.

@@ -36,9 +36,8 @@ Coordinates
 pybullet makes every body a Featherstone multibody (a free base of six
 degrees of freedom) unless asked for "maximal coordinates", a plain
 ``btRigidBody``. For a single free object both give the same motion under
-the same contacts; the multibody's constraint rows cost more to solve
-(issue #22: stacking the authors' models 1.9x faster with plain rigid
-bodies). ``maximal_coordinates`` chooses.
+the same contacts; the multibody's constraint rows cost more to solve, so
+piles of plain rigid bodies stack faster. ``maximal_coordinates`` chooses.
 """
 
 from __future__ import annotations
@@ -220,8 +219,8 @@ def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _principal_inertia_of(inertia: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     """:func:`principal_inertia` of a flat (9,) inertia tensor, computed once per tensor and process.
 
-    Every body of every pile asked for it anew: 4 % of the stacking (issue
-    #22). The arrays are read-only, since the cache hands out the same ones.
+    Every body of every pile asks for it, mostly for tensors already seen.
+    The arrays are read-only, since the cache hands out the same ones.
     """
     moments, quaternion = principal_inertia(np.asarray(inertia, dtype=np.float64).reshape(3, 3))
     moments.flags.writeable = quaternion.flags.writeable = False
@@ -383,8 +382,8 @@ def process_client() -> int:
     """This process's own headless (DIRECT) client, created on first use.
 
     One client per worker process, reused by every grasp trial and every
-    dropped pile the process makes (connecting costs 5-30 ms, more than a
-    grasp trial); disconnected at exit. Its users empty it before each use.
+    dropped pile the process makes (connecting costs more than a grasp
+    trial); disconnected at exit. Its users empty it before each use.
     """
     pybullet = pybullet_module()
     if _ProcessClient.client is None or not pybullet.isConnected(_ProcessClient.client):
@@ -408,7 +407,7 @@ def worker_client(timestep: float = 1.0 / 240.0, gravity: float = -9.81) -> Iter
 
     The same as a new client (a test checks that piles dropped in it equal
     those of new clients, in any order), without connecting anew for each
-    use (issue #22).
+    use.
 
     Parameters
     ----------
@@ -437,8 +436,8 @@ def worker_client(timestep: float = 1.0 / 240.0, gravity: float = -9.81) -> Iter
 
 #: Where bodies wait between piles: body ``i`` at ``PARKING_ORIGIN + PARKING_SPACING * (i % 100, i // 100, 0)``,
 #: far from every pile and from each other. A body left where its last pile put it overlaps the next pile's,
-#: and pybullet's broadphase then walks every such overlap whenever a body moves there: with the ~1,800
-#: gripper and object bodies a worker keeps, that made each move of the gripper cost ~0.2 ms (issue #22).
+#: and pybullet's broadphase then walks every such overlap whenever a body moves there: with the many
+#: gripper and object bodies a worker keeps, that would make each move of the gripper slow.
 PARKING_ORIGIN = np.array([1000.0, 1000.0, 1000.0])
 PARKING_SPACING = 2.0
 
@@ -453,7 +452,7 @@ class PileWorld:
     stepped: closest-point queries between two bodies depend only on their
     shapes and poses, so a pile placed here answers them as a pile loaded
     anew in an empty world (a test checks it), without building its
-    collision compounds again (issue #22). Used by the samples stage's
+    collision compounds again. Used by the samples stage's
     gripper collisions (:mod:`osgd.samples.collision`, which keeps its
     gripper bodies in :attr:`gripper_bodies`), the scenes stage's test
     of the stored parts (:func:`osgd.scenes.drop.stored_penetration`) and

@@ -4,9 +4,8 @@ embree (through embreex, or trimesh's ray module) answers two questions for a
 ray: *which* triangle it hits first, and *where*. It answers the second in
 float32 with SIMD kernels picked at run time for the processor (SSE, AVX2,
 AVX-512), so the distance differs in its last bits from one machine to
-another, and a shard built from it is not byte-identical across machines
-(found when the golden pipeline, recorded on an AVX2 machine, was rebuilt on
-an AVX-512 one). The stages therefore keep embree's answer to *which* and
+another, and a shard built from it is not byte-identical across machines.
+The stages therefore keep embree's answer to *which* and
 compute *where* again here, in float64, with element-wise IEEE operations
 only: each of them is correctly rounded whatever the SIMD width, and numpy
 never fuses a multiply and an add across two ufunc calls.
@@ -65,8 +64,7 @@ def rotate_grid_rays(x: np.ndarray, y: np.ndarray, rotation: np.ndarray) -> tupl
     Each component of a turned ray is ``x * R[i, 0] + y * R[i, 1] + R[i, 2]``,
     the operations of :func:`rotate_rows` in its order (``1 * R[i, 2]`` is
     ``R[i, 2]`` exactly), so the products are made once per column and once
-    per row and only the sums once per pixel (issue #22: turning every
-    pixel's ray took a seventh of the samples stage). The components come
+    per row and only the sums once per pixel. The components come
     apart, as contiguous (H, W) arrays: tests on them run several times
     faster than on the columns of an (H, W, 3) array.
 
@@ -129,7 +127,7 @@ def plane_hit_distances(origins: np.ndarray, directions: np.ndarray, triangles: 
 
 #: Embree scenes kept per process by :class:`EmbreeScenes` (each holds a mesh and its BVH, about 100 bytes
 #: per triangle: 64 of the authors' largest meshes take about 300 MB). 128, so that all 75 of the authors'
-#: models stay built: at 64 a sixth of the casts rebuilt a scene, 7 % of the samples stage (issue #22).
+#: models stay built.
 EMBREE_SCENES_KEPT = 128
 
 
@@ -137,8 +135,7 @@ class EmbreeScenes:
     """Embree scenes of meshes in their own frame, built once per mesh key and reused.
 
     Building the scene (its BVH) costs about 100 times casting an object's
-    rays at it (an authors' pen of 47k triangles: 150 ms against 1.5 ms), so
-    the ``capacity`` most recently used are kept. Equal keys must mean
+    rays at it, so the ``capacity`` most recently used are kept. Equal keys must mean
     equal meshes (the samples stage's renderer and silhouettes, and the
     scenes stage's top-down views, key them by model id).
     """

@@ -38,7 +38,7 @@ Two pad models (``pad_contact``):
   ``tests/test_checks_physics.py`` measure it). Contact stiffness and damping
   give the pad its compliance.
 - ``"rigid"``: plain finger boxes, no torsional friction, the solver's rigid
-  contact: the check before issue #17, kept to compare against.
+  contact.
 """
 
 from __future__ import annotations

@@ -24,18 +24,17 @@ class ChecksStageParams(StageParams):
     )
     solver_iterations: int = Field(
         100, ge=1, le=300,
-        description="constraint solver iterations per step (pybullet's default is 50). With 30 the motors "
-        "reached 30-60 N of their 70 N on light thin objects (pens, forks: 5-50 g) and a pad sank 3-5 mm into "
-        "the hull; 100 brought the annotated grasps that hold on the lift from 76 % to 91 % on every fifth shared "
-        "model (docs/checks.md)",
+        description="constraint solver iterations per step (pybullet's default is 50); with fewer the motors "
+        "fall short of their force limit on light thin objects (pens, forks) and a pad sinks into the hull "
+        "(docs/checks.md)",
     )
     max_mass_ratio: float = Field(
         0.0, ge=0.0, json_schema_extra={"omit_default": True},
         description="above 0: a trial of an object lighter than finger_mass / max_mass_ratio runs at "
         "timestep / ceil(finger_mass / (max_mass_ratio x mass)), so that the solver never resolves a pinch "
-        "across a larger mass ratio per step (Bullet's manual: keep mass ratios near 1:10). Issue #17: at "
-        "1/240 s the 4 g pen of the authors' models squirted out from between the 0.1 kg fingers in 166 of "
-        "256 trials (docs/checks.md); 0: the timestep for every object",
+        "across a larger mass ratio per step (Bullet's manual: keep mass ratios near 1:10); at 1/240 s a pen of a "
+        "few grams squirts out from between the 0.1 kg fingers (docs/checks.md); 0: the timestep for every "
+        "object",
     )
     contact_erp: float | None = Field(
         0.8, gt=0.0, le=1.0,
@@ -54,15 +53,14 @@ class ChecksStageParams(StageParams):
     pad_contact: Literal["soft", "rigid"] = Field(
         "soft",
         description="'soft': crowned rubber pads with torsional friction and compliance, the soft-finger contact "
-        "of osgd.gripper; 'rigid': flat rigid boxes with no torsional friction, the check before issue #17 "
+        "of osgd.gripper; 'rigid': flat rigid boxes with no torsional friction "
         "(docs/checks.md)",
     )
     palm_mass: float = Field(0.5, gt=0.0, description="mass of the palm, kg")
     finger_mass: float = Field(
         0.1, gt=0.0,
         description="mass of each finger, kg; heavier than a real pad (~20 g) because with light fingers the "
-        "solver does not bring the motor to its force limit (20 g: 28 N of 40 N at 30 iterations; 50 g and "
-        "more: the full 40 N, docs/checks.md)",
+        "solver does not bring the motor to its force limit (docs/checks.md)",
     )
     grip_force: float | None = Field(
         None, gt=0.0,
@@ -90,9 +88,8 @@ class ChecksStageParams(StageParams):
         description="what the approach sweep tests the hand against: 'hulls', the convex parts pybullet "
         "simulates, or 'mesh', samples of the model's own surface (one per approach_surface_spacing^2 of area "
         "plus every vertex), as the grasps stage's collision test; 'auto': 'mesh' for users' meshes, 'hulls' "
-        "for the others. Issue #17: 361 of the 385 authors' annotated grasps that failed the approach on the "
-        "hulls are free of the mesh (docs/checks.md); issue #16: scan stand-ins fail the approach on 11.0 % of "
-        "their trials against their hulls, 0.6 % against the mesh (docs/models.md)",
+        "for the others: the hulls are larger than the mesh, so most grasps that fail the approach on the hulls "
+        "are free of the mesh (docs/checks.md, docs/models.md)",
     )
     approach_surface_spacing: float = Field(
         0.001, gt=0.0, le=0.005, json_schema_extra={"omit_default": True},

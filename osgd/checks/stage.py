@@ -1,4 +1,4 @@
-"""The checks stage: every grasp tried in pybullet (issue #5).
+"""The checks stage: every grasp tried in pybullet.
 
 One work item per ``models`` shard, paired with the ``grasps`` shard of the
 same item id (the grasps stage plans exactly one per models shard); it

@@ -144,7 +144,7 @@ def format_acceptance(counts: AcceptanceCounts, approach_geometry: str = "auto")
     Users' meshes whose approach was swept against their convex parts
     (``approach_geometry`` set to ``hulls``) get a note: on scans that fails
     the approach far more often than against the mesh (docs/models.md, "The
-    checks on scans": 11 % against 0.6 %).
+    checks on scans").
     """
     stable, trials = counts.rate()
     if not trials:

@@ -6,9 +6,8 @@
 
 PNG through OpenCV is lossless and deterministic for the same array and
 encoder settings, so shards stay byte-identical across runs. The settings
-are chosen per image kind for speed at about the same size (issue #22,
-measured on the authors' piles at 320 x 320: 10.9 -> 3.8 ms per sample,
-81.3 -> 80.9 KiB; ``benchmarks/bench_png.py``): any PNG decoder reads the same arrays.
+are chosen per image kind for speed at about the same size
+(``benchmarks/bench_png.py``): any PNG decoder reads the same arrays.
 """
 
 from __future__ import annotations
@@ -19,8 +18,8 @@ import cv2
 import numpy as np
 
 #: Noisy depth: rows predicted from the row above, entropy-coded only (LZ77
-#: finds no repeats in sensor noise): a third of the time of zlib level 3 with
-#: adaptive filters, the same size.
+#: finds no repeats in sensor noise): faster than zlib level 3 with adaptive
+#: filters, at the same size.
 DEPTH_PNG_PARAMS = (cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
                     cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP)
 #: Clean depth (flat table, smooth objects): zlib level 3 without row filters.

@@ -6,12 +6,10 @@ thread pools and pyarrow's S3 file system (the AWS SDK's threads) can be torn
 down there while one of their threads is still alive; a ``std::thread``
 destroyed in that state calls ``std::terminate``, and a run that wrote every
 shard and printed its summary exits with SIGABRT and "terminate called
-without an active exception" (apache/arrow issues 34314 and 41087). CI saw
-it once, on ``osgd run`` over an ``s3://`` data dir (issue #20's tests), after
-hundreds of clean runs; it depends on thread timing, not on the data. Stopped
-in gdb at libc's ``exit()``, after the interpreter's finalisation and before
-the static destructors, such a run still has three of Arrow's thread-pool
-workers (``std::thread``) waiting for work.
+without an active exception" (apache/arrow issues 34314 and 41087). It is
+rare and depends on thread timing, not on the data. At libc's ``exit()``,
+after the interpreter's finalisation and before the static destructors,
+Arrow's thread-pool workers (``std::thread``) can still be waiting for work.
 
 :func:`exit_process` runs the clean-up that a normal exit runs in Python (the
 threads that still work are waited for, then the ``atexit`` handlers: the

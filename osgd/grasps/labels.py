@@ -25,9 +25,8 @@ their 75 models the pairs of each category's task lie in the half at the
 handle end and the hand-over pairs in the half at the working end, handle
 included (a hammer held by the shaft under its head, a fork by its neck;
 paper Fig. 1: hand over "grasp its head or neck"), so the half agrees with
-90 % of their 3,480 pairs where the parts alone agree with 76 %
-(docs/models.md, "How well: the authors' models"). ``split = 1`` labels
-by the parts alone, the rule before issue #16.
+more of their pairs than the parts alone do (docs/models.md, "How well:
+the authors' models"). ``split = 1`` labels by the parts alone.
 
 A working part at the handle end, behind the centre of the handle parts (a
 wrench's ring end, when the open jaws are at the other), is held like the
@@ -72,7 +71,7 @@ class LabelRule(BaseModel):
         0.5, gt=0.0, le=1.0,
         description="where along the tool, as a share of its length from the handle end, the category's task "
         "(behind) gives way to hand over (at and beyond), as the paper authors annotated their models; 1: by "
-        "the parts alone (the rule before issue #16)",
+        "the parts alone",
     )
 
     @property

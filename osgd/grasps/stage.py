@@ -1,4 +1,4 @@
-"""The grasps stage: 6-DoF parallel-jaw grasps with task labels (issue #4).
+"""The grasps stage: 6-DoF parallel-jaw grasps with task labels.
 
 One work item per ``models`` shard, with the same item id, reading exactly
 that shard; it writes one ``grasps`` shard holding the grasps of every model
@@ -40,7 +40,7 @@ class GraspsStage(Stage):
 
     name = "grasps"
     table = "grasps"
-    # Bump whenever the grasps of the same models change (3: the tool axis points to the first working part, issue #16).
+    # Bump whenever the grasps of the same models change (3: the tool axis points to the first working part).
     version = 3
     inputs = ("models",)
     Params = GraspsStageParams

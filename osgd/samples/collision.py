@@ -12,8 +12,8 @@ so a grasp on a thin tool lying on the table would always touch it.
 Each worker process keeps one such world (:func:`worker_pile_world`, an
 :class:`osgd.physics.PileWorld`): a static body per model and copy is made
 the first time a pile needs it and moved into place for every later pile,
-and the gripper bodies are kept per opening, so a sample no longer loads its
-pile's collision compounds anew (issue #22). The world is never stepped:
+and the gripper bodies are kept per opening, so a sample does not load its
+pile's collision compounds anew. The world is never stepped:
 only the bodies of the pile at hand are ever asked about, so bodies parked
 where an earlier pile left them change nothing.
 """

@@ -10,8 +10,8 @@ Backends
     nearest hit wins, and the same casts count each object's silhouette.
 ``egl``
     pybullet's EGL plugin (Mesa llvmpipe on a machine without a GPU, the
-    real driver where there is one): 22 ms per 640 x 480 frame here, depth
-    within 0.03 mm of an exact ray cast (REFERENCE section 8). Loading the
+    real driver where there is one): depth within 0.03 mm of an exact ray
+    cast (REFERENCE section 8). Loading the
     plugin where no EGL driver exists makes the process exit with no
     exception, so :func:`egl_available` first tries it in a subprocess.
 ``tiny``
@@ -57,8 +57,8 @@ from osgd.samples.viewpoint import CameraPose
 log = logging.getLogger(__name__)
 
 #: Backend names in the order ``auto`` tries them: the exact ray caster first, since with each mesh's scene
-#: built once per worker it is also the fastest on a CPU (issue #22: 155 against 277 ms per sample of the
-#: authors' models with EGL on Mesa llvmpipe, ``benchmarks/bench_render.py``) and needs no GL driver.
+#: built once per worker it is also the fastest on a CPU (``benchmarks/bench_render.py``) and needs no GL
+#: driver.
 BACKENDS: tuple[str, ...] = ("embree", "egl", "tiny")
 
 #: Clip planes of the GL backends, metres: wider than the sensor range (the
@@ -244,7 +244,7 @@ class EmbreeRenderer:
     cached in :class:`osgd.raycast.EmbreeScenes` (rays turned into the mesh's frame), and
     the nearest hit per pixel wins; the floor is the plane ``z = 0``. The
     same casts count the pixels each object covers alone, so the rendering
-    carries its ``silhouettes`` (issue #22: no second cast per object).
+    carries its ``silhouettes`` with no second cast per object.
 
     Parameters
     ----------

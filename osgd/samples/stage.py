@@ -504,7 +504,7 @@ def worker_model_inputs(
 
     Every samples item of a pipeline names the same models, grasps and
     checks shards (:func:`osgd.stage.read_once_per_worker`; reading them
-    for each item took 14 % of its time on the authors' models, issue #22).
+    for each item would cost a large share of its time).
 
     Parameters
     ----------
@@ -530,7 +530,7 @@ class SamplesStage(Stage):
 
     name = "samples"
     table = "samples"
-    # 4: the shards record their vocabulary (osgd.vocabulary); 5: silhouettes in the mesh frame (issue #22);
+    # 4: the shards record their vocabulary (osgd.vocabulary); 5: silhouettes in the mesh frame;
     # 6: PNG writer settings per image kind (osgd.contract.encoding; the same decoded images, other bytes)
     version = 6
     inputs = ("models", "grasps", "checks", "scenes")

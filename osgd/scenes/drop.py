@@ -192,7 +192,7 @@ def build_world(client: int, params: ScenesStageParams) -> list[int]:
     lateral, rolling, spinning = params.floor_friction
     plane = pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client)
     # A body without a visual shape gets one made from its collision shape for pybullet's renderer: for the
-    # plane that took 5-18 ms, as long as 60 steps of a pile. A small box instead; physics never sees it.
+    # plane that is slow, as long as many steps of a pile. A small box instead; physics never sees it.
     look = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=[0.01] * 3, physicsClientId=client)
     maximal = params.maximal_coordinates
     bodies = [pybullet.createMultiBody(0, plane, look, useMaximalCoordinates=maximal, physicsClientId=client)]
@@ -509,9 +509,8 @@ def stored_parts_world(params: ScenesStageParams) -> PileWorld:
 
     A :class:`osgd.physics.PileWorld` with the floor and walls of
     :func:`build_world`: each model's body of stored parts is made once per
-    process and moved from pile to pile, where each pile built its bodies
-    anew before (a stored part has a median of 310 corners: about 5 ms per
-    body, 15 % of the stacking of the authors' models; issue #22). One world
+    process and moved from pile to pile, rather than built anew for each
+    pile (a stored part has hundreds of corners, slow to make into a body). One world
     at a time: parameters that move the walls replace it; disconnected at
     exit.
 

@@ -88,10 +88,9 @@ class ScenesStageParams(StageParams):
         1, ge=1, json_schema_extra={"omit_default": True},
         description="test for a blow-up, an object out of the area or through the floor every this many steps "
                     "(and at every rest test and the last step); 1: every step. Each test asks pybullet three "
-                    "things per object, a tenth of the stacking time at 1 (issue #22); what it catches (NaN, an "
+                    "things per object, a sizeable share of the stacking time at 1; what it catches (NaN, an "
                     "object flung out or through the floor) lasts, so a sparser test rejects the same attempts, "
-                    "a few steps later, but for a speed spike shorter than the interval (at 8: 1 of the 8,000 "
-                    "piles of pipelines/osgd.toml)",
+                    "a few steps later, but for a speed spike shorter than the interval",
     )
     penetration_tolerance: float = Field(
         0.005, ge=0.0, description="objects interpenetrating deeper than this after settling are rejected"
@@ -102,17 +101,16 @@ class ScenesStageParams(StageParams):
     max_hull_vertices: int = Field(
         0, ge=0, json_schema_extra={"omit_default": True},
         description="above 0: while dropping, a convex part of more corners collides as the hull of this many "
-                    "of its corners (osgd.physics.reduced_hull; issue #22: 32 makes stacking the authors' models "
-                    "1.5x faster), and the settled pile's interpenetration is judged on the stored parts; "
+                    "of its corners (osgd.physics.reduced_hull; fewer corners make stacking faster), and the "
+                    "settled pile's interpenetration is judged on the stored parts; "
                     "0: the parts as stored",
     )
     maximal_coordinates: bool = Field(
         False, json_schema_extra={"omit_default": True},
         description="simulate the objects, floor and walls as plain rigid bodies (pybullet's "
                     "useMaximalCoordinates) instead of Featherstone multibodies with a free base: the same "
-                    "contacts and friction, solved by Bullet's rigid-body solver. Issue #22: stacking the "
-                    "authors' models 1.9x faster with the piles' statistics and stillness within noise "
-                    "(docs/scenes.md); False keeps the piles of earlier builds",
+                    "contacts and friction, solved by Bullet's rigid-body solver, which stacks faster with piles "
+                    "of the same statistics and stillness (docs/scenes.md); False: Featherstone multibodies",
     )
 
     @model_validator(mode="after")

@@ -24,8 +24,8 @@ def worker_model_pool(store: ShardStore, keys: Sequence[str], item_id: str) -> M
     """The :class:`ModelPool` of the models shards ``keys``, read once per worker.
 
     Every scenes item of a pipeline names the same models shards
-    (:func:`osgd.stage.read_once_per_worker`; reading them for each item of
-    25 piles took 13 % of its time on the authors' 75 models, issue #22).
+    (:func:`osgd.stage.read_once_per_worker`; reading them for each item
+    would cost a large share of its time).
 
     Parameters
     ----------

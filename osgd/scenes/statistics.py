@@ -86,8 +86,8 @@ def _floor(client: int) -> list[int]:
 def contacts_world() -> PileWorld:
     """This process's world for :func:`scene_contacts`: the floor, and each model's body made once.
 
-    Each scene loaded its bodies into a new client before: a quarter of the
-    stacking statistics of the authors' models (issue #22). Disconnected at exit.
+    Loading each scene's bodies into a new client is slow; the bodies are
+    made once and moved from scene to scene. Disconnected at exit.
     """
     world = PileWorld(_floor)
     atexit.register(world.close)

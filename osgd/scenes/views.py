@@ -119,8 +119,7 @@ def with_mesh_arrays(models: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[
     """The rows with ``vertices`` and ``faces`` as (N, 3) arrays, converted once for many scenes.
 
     A row from ``Table.to_pylist()`` holds them as flat lists, and turning
-    them into arrays for every object of every scene took a seventh of the
-    stacking statistics of the authors' models (issue #22).
+    them into arrays for every object of every scene is slow.
 
     Parameters
     ----------
@@ -202,8 +201,8 @@ def cast_view(meshes: Sequence[PosedMesh], axis: str = "top", pixel: float = 0.0
     shape = grid_h.shape
     distances = np.full((len(meshes), *shape), np.inf)
     for index, mesh in enumerate(meshes):
-        # Cast in the mesh's frame at its scene built once per process (building one per object and view took
-        # a third of the stacking statistics; issue #22); the distances below are on the world triangles.
+        # Cast in the mesh's frame at its scene built once per process (building one per object and view is
+        # slow); the distances below are on the world triangles.
         scene = view_scenes().scene(mesh.model_id, mesh.local_vertices, mesh.faces)
         local_origins = rotate_rows(origins - mesh.position, mesh.rotation.T).astype(np.float32)
         local_direction = rotate_rows(direction[None, :], mesh.rotation.T)[0]
