@@ -49,9 +49,8 @@ def read_once_per_worker(name: str, store: ShardStore, keys: Sequence[str], read
 
     Every item of a stage names the same upstream shards (every models
     shard, say), and a shard key stands for its content, so a worker reads
-    and converts them for its first item and reuses them for the rest
-    (issue #22: 13-14 % of an item's time on the authors' models in the
-    scenes and samples stages). One value is kept per ``name``: other keys
+    and converts them for its first item and reuses them for the rest.
+    One value is kept per ``name``: other keys
     replace it.
 
     Parameters

@@ -1,8 +1,8 @@
 """``models`` rows as numpy arrays, for the stages that load meshes into physics or a renderer.
 
 ``Table.to_pylist()`` turns every vertex of every mesh and convex part into
-Python floats: for the authors' models (up to ~50k vertices each) that was
-14 % of the samples stage's time (issue #22). :func:`model_rows` reads the
+Python floats, which is slow for the authors' models (up to ~50k vertices
+each). :func:`model_rows` reads the
 same rows with the mesh columns as numpy arrays, straight from the Arrow
 buffers, and leaves out the columns those stages never read.
 """
