@@ -136,10 +136,11 @@ def test_a_checkpoint_of_another_vocabulary_is_refused(samples_dir: Path, tmp_pa
                       backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1,
                       device="cpu", amp=False,
                       model_options={"box_head.detections_per_image": 5, "rpn.post_nms_test": 50}))
-    # what a training run saves loads without unpickling code, vocabulary, schema and scaler included
+    # what a training run saves loads without unpickling code, vocabulary and schema included
     checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
     assert checkpoint["vocabulary"] == {field: list(names) for field, names in VOCABULARY.items()}
-    assert {"scaler", "schema_version", "optimizer", "scheduler"} <= set(checkpoint)
+    assert {"schema_version", "model", "config"} <= set(checkpoint)
+    assert {"scaler", "optimizer", "scheduler"} <= set(torch.load(run_dir / "training-state.pt", weights_only=True))
     arguments = ["eval", str(run_dir / "checkpoint.pt"), "--data", str(samples_dir), "--pipeline", "synthetic",
                  "--speed-images", "0", "--out", str(tmp_path / "eval.json")]
     assert CliRunner().invoke(app, arguments).exit_code == 0

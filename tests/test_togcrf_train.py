@@ -76,7 +76,9 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
 
     run_dir = tmp_path / "resumed"
     checkpoint = torch.load(run_dir / "checkpoint.pt", weights_only=True)
-    assert set(checkpoint) >= {"model", "optimizer", "scheduler", "epoch", "config", "data"}
+    assert set(checkpoint) >= {"model", "epoch", "config", "data"} and "optimizer" not in checkpoint
+    state = torch.load(run_dir / "training-state.pt", weights_only=True)
+    assert set(state) == {"optimizer", "scheduler", "scaler", "epoch"} and state["epoch"] == checkpoint["epoch"]
     assert checkpoint["epoch"] == 1
     assert checkpoint["config"]["model"] == "tog-crfs" and checkpoint["config"]["image_size"] == 64
     assert checkpoint["config"]["model_options"]["grasp_head"]["channels"] == 32
@@ -108,6 +110,20 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
             **SMALL, "backbone.fpn_max_stride": 16, "rpn.anchor_sizes": [16, 32, 64, 128]}))
     assert load_checkpoint(run_dir / "checkpoint.pt")[1]["depth_reference"] == "table"
     assert train(quick_config(data_dir, run_dir, epochs=3, resume=True))["epoch"] == 2
+
+
+def test_the_checkpoint_holds_the_model_and_the_training_state_lies_beside_it(data_dir, tmp_path):
+    """checkpoint.pt is what evaluation needs (its weights and config), about the model's size; --resume also
+    needs training-state.pt, and says so in one line when it is missing."""
+    run_dir = tmp_path / "run"
+    train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw"))
+    weights = sum(value.numel() * value.element_size()
+                  for value in torch.load(run_dir / "checkpoint.pt", weights_only=True)["model"].values())
+    assert (run_dir / "checkpoint.pt").stat().st_size < 1.05 * weights + 2**20
+    assert (run_dir / "training-state.pt").stat().st_size > 1.9 * weights  # AdamW's two moments
+    (run_dir / "training-state.pt").unlink()
+    with pytest.raises(ValueError, match=r"--resume: .*training-state\.pt is missing"):
+        train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw", epochs=2, resume=True))
 
 
 def test_the_depth_reference_trained_with_is_the_one_a_policy_feeds(data_dir, tmp_path):

@@ -3,9 +3,11 @@
 ``RUN_DIR/checkpoint.pt`` is a dict of tensors and plain values, loaded with
 ``torch.load(weights_only=True)`` (no pickled code runs):
 
-- ``model``, ``optimizer``, ``scheduler``, ``scaler``: state dicts (the
-  scaler's is empty without float16 mixed precision); ``--resume`` restores
-  all four;
+- ``model``: the model's state dict, float32: what evaluation, prediction
+  and the robot need. The optimiser, schedule and loss-scaler state that
+  ``--resume`` also needs lie beside it in ``RUN_DIR/training-state.pt``
+  (``togcrf.train``), so that a checkpoint to share or evaluate is no larger
+  than its weights; older checkpoints that hold them inside still resume;
 - ``config``: the resolved training options (``togcrf.config.TrainConfig``
   as a dict, the model options nested by group; flat model options of older
   checkpoints are migrated on loading, ``togcrf.model.options.stored_options``);
@@ -93,6 +95,8 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
         checkpoint = torch.load(path, map_location=device, weights_only=True)
     except (RuntimeError, ValueError, EOFError, OSError, pickle.UnpicklingError) as error:
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        if first.startswith("Weights only load failed"):
+            first = "it needs unpickling code or objects, which is never done; a togcrf checkpoint holds tensors"
         raise ValueError(f"{path}: not a readable togcrf checkpoint ({first})") from error
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
         raise ValueError(f"{path}: not a togcrf checkpoint (needs 'model' and 'config')")

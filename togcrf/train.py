@@ -216,6 +216,35 @@ def _with_this_implementation(state: dict[str, Any], optimizer: torch.optim.Opti
     return {**state, "param_groups": groups}
 
 
+#: The optimiser, schedule and loss-scaler state of a run dir, beside ``checkpoint.pt``: what ``--resume`` needs
+#: and evaluation, prediction and the robot do not, so the checkpoint holds the model alone.
+TRAINING_STATE_FILE = "training-state.pt"
+
+
+def _save_training_state(path: Path, run: TrainingRun, epoch: int) -> None:
+    """Write the run's optimiser, schedule and scaler state of ``epoch`` atomically."""
+    temporary = path.with_suffix(".pt.tmp")
+    torch.save({"optimizer": run.optimizer.state_dict(), "scheduler": run.scheduler.state_dict(),
+                "scaler": run.scaler.state_dict(), "epoch": epoch}, temporary)
+    os.replace(temporary, path)
+
+
+def _training_state(checkpoint_path: Path, checkpoint: dict[str, Any], device: torch.device) -> dict[str, Any]:
+    """The training state that goes with a checkpoint: ``training-state.pt`` beside it, or the checkpoint
+    itself where it holds one (checkpoints that kept the optimiser inside)."""
+    if "optimizer" in checkpoint:
+        return checkpoint
+    path = checkpoint_path.parent / TRAINING_STATE_FILE
+    if not path.is_file():
+        raise ValueError(f"--resume: {path} is missing; the checkpoint alone cannot continue the run exactly "
+                         "(use --init to start a new run from its weights)")
+    state = torch.load(path, map_location=device, weights_only=True)
+    if state.get("epoch") != checkpoint.get("epoch"):
+        raise ValueError(f"--resume: {path} is of epoch {state.get('epoch')}, {checkpoint_path} of epoch "
+                         f"{checkpoint.get('epoch')}; they were not written together")
+    return state
+
+
 def _resume(run: TrainingRun, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
     """Load a checkpoint into the run; the first epoch still to train."""
     checkpoint = read_checkpoint(checkpoint_path, run.device)
@@ -225,11 +254,12 @@ def _resume(run: TrainingRun, checkpoint_path: Path, stored_config: dict[str, An
         if saved.get(key) != stored_config.get(key):
             raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {saved.get(key)!r}, "
                              f"now {stored_config.get(key)!r}")
+    state = _training_state(checkpoint_path, checkpoint, run.device)
     run.model.load_state_dict(checkpoint["model"])
-    run.optimizer.load_state_dict(_with_this_implementation(checkpoint["optimizer"], run.optimizer))
-    run.scheduler.load_state_dict(checkpoint["scheduler"])
-    if checkpoint.get("scaler"):  # older checkpoints have no scaler state
-        run.scaler.load_state_dict(checkpoint["scaler"])
+    run.optimizer.load_state_dict(_with_this_implementation(state["optimizer"], run.optimizer))
+    run.scheduler.load_state_dict(state["scheduler"])
+    if state.get("scaler"):  # older checkpoints have no scaler state
+        run.scaler.load_state_dict(state["scaler"])
     logger.info("resuming %s after epoch %d", checkpoint_path, int(checkpoint["epoch"]))
     run.trained_seconds = float(checkpoint.get("trained_seconds", 0.0))
     if checkpoint.get("stopped_by_budget"):
@@ -285,11 +315,11 @@ def train(config: TrainConfig, progress: Callable[[Progress], None] | None = Non
             last_row.update(validation_metrics(run))
             rows.append(last_row)
             _write_metrics(metrics_path, rows)
+            _save_training_state(run_dir / TRAINING_STATE_FILE, run, epoch)
             save_checkpoint(checkpoint_path, {
-                "model": run.model.state_dict(), "optimizer": run.optimizer.state_dict(),
-                "scheduler": run.scheduler.state_dict(), "scaler": run.scaler.state_dict(), "epoch": epoch,
-                "config": stored_config, "data": data_identity, "stopped_by_budget": run.out_of_time,
-                "trained_seconds": run.trained_seconds}, run.dataset.vocabulary)
+                "model": run.model.state_dict(), "epoch": epoch, "config": stored_config, "data": data_identity,
+                "stopped_by_budget": run.out_of_time, "trained_seconds": run.trained_seconds},
+                run.dataset.vocabulary)
         distributed.barrier(run.context)
         if writer is not None:
             for key in ("loss", *LOSS_KEYS, "train_acc_t_top1", *VALIDATION_COLUMNS):
