@@ -315,6 +315,7 @@ def assert_losses_fall(rows: list[dict[str, str]], factor: float) -> None:
     assert float(last["grasp_stability"]) < 0.5, last["grasp_stability"]
 
 
+@pytest.mark.slow
 def test_short_training_fits_two_samples(data_dir, tmp_path):
     """80 SGD steps on 2 samples at 64 px (about 30 s on an idle 2-core CPU): the model fits them."""
     rows = fit(data_dir, tmp_path / "run", epochs=80, samples=2, image_size=64)
@@ -328,7 +329,6 @@ def test_short_training_fits_two_samples(data_dir, tmp_path):
 def test_longer_training_on_synthetic_samples(data_dir, tmp_path):
     """200 SGD steps on 4 samples at 128 px (about a minute on an idle 2-core CPU, several when loaded).
 
-    The figures of this run are in docs/togcrf.md.
     """
     rows = fit(data_dir, tmp_path / "run", epochs=100, samples=4, image_size=128)
     assert_losses_fall(rows, 0.3)
@@ -347,6 +347,7 @@ def train_on_golden_samples(golden_dir, out, epochs: int) -> tuple[list[dict[str
     return rows, fitted_fractions(golden_dir, out, 4, pipeline="golden")
 
 
+@pytest.mark.slow
 def test_short_training_on_the_golden_samples(golden_dir, tmp_path):
     """200 SGD steps on the 4 golden samples (about 150 s on an idle 2-core CPU).
 
