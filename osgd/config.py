@@ -7,7 +7,8 @@ optional ``[executor]`` section says where the items run
 (:class:`ExecutorSection`), which changes no shard. Any value
 can be overridden with ``section.key=value`` (the value is read as TOML, so
 ``3``, ``0.5``, ``true``, ``"text"`` and ``[1, 2]`` all work; a bare word is
-a string).
+a string), and a key of a parameter group with ``section.group.key=value``
+(``scenes.split.by=model`` sets ``by`` of ``[scenes.split]``).
 
 Values are checked strictly: a string or a boolean is no integer (``count =
 "4"`` and ``count = true`` are errors), an integer is a valid float. Each
@@ -177,13 +178,23 @@ def _describe_error(
         source = f"override {overrides[location[0]]!r}" if location and location[0] in overrides else origin
         message = problem["msg"].removeprefix("Value error, ")
         if problem["type"] == "extra_forbidden":
-            message = f"unknown key; allowed keys: {', '.join(model.model_fields)}"
+            message = f"unknown key; allowed keys: {', '.join(_group_model(model, location[:-1]).model_fields)}"
         if location:
             lines.append(f"{source}: [{section}] {'.'.join(location)} = {problem.get('input')!r}: {message}")
         else:  # a rule across keys: blame the file and every override of the section
             source += "".join(f", override {text!r}" for text in overrides.values())
             lines.append(f"{source}: [{section}]: {message}")
     return "\n".join(lines)
+
+
+def _group_model(model: type[BaseModel], location: Sequence[str]) -> type[BaseModel]:
+    """The model of the parameter group at ``location`` inside ``model`` (``["split"]``: ``[scenes.split]``)."""
+    for part in location:
+        info = model.model_fields.get(part)
+        if info is None or not (isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel)):
+            break
+        model = info.annotation
+    return model
 
 
 def _validate(
@@ -246,8 +257,13 @@ def build_config(
         section, key, value = parse_override(override)
         if section not in allowed:
             raise ConfigError(f"override {override!r}: unknown section [{section}]; allowed: {sorted(allowed)}")
-        sections.setdefault(section, {})[key] = value
-        overridden.setdefault(section, {})[key] = override
+        *groups, last = key.split(".")
+        target = sections.setdefault(section, {})
+        for group in groups:  # section.group.key=value sets one key of a parameter group ([scenes.split])
+            target[group] = dict(target[group]) if isinstance(target.get(group), dict) else {}
+            target = target[group]
+        target[last] = value
+        overridden.setdefault(section, {})[groups[0] if groups else key] = override
     unknown = sorted(set(sections) - allowed)
     if unknown:
         raise ConfigError(f"{origin}: unknown section(s) {unknown}; allowed: {sorted(allowed)}")

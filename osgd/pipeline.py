@@ -121,9 +121,11 @@ class MissingInputError(RuntimeError):
 
 
 def _manifest_stage_entry(
-    stage: Stage, config: PipelineConfig, report: StageReport, planned: int
+    stage: Stage, config: PipelineConfig, report: StageReport, planned: int,
+    extra: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     entry = {
+        **(extra or {}),
         "version": stage.version,
         "table": stage.table,
         "params": config.params[stage.name].key_dict(),
@@ -246,7 +248,8 @@ def _run_in_order(
         reports.append(report)
         failed_ids = {failure.item_id for failure in report.failures}
         planned[stage.name] = [shard for shard in shards if shard.item.item_id not in failed_ids]
-        recorded[stage.name] = _manifest_stage_entry(stage, config, report, len(shards))
+        extra = stage.manifest_extra(planned[stage.name], store) if planned[stage.name] else {}
+        recorded[stage.name] = _manifest_stage_entry(stage, config, report, len(shards), extra)
         store.write_manifest(
             config.pipeline.name,
             {

@@ -175,6 +175,18 @@ class Stage(abc.ABC):
     def build(self, item: WorkItem, store: ShardStore) -> pa.Table | BuildResult:
         """Compute the rows of one item. Runs in a worker process."""
 
+    def manifest_extra(self, shards: Sequence[PlannedShard], store: ShardStore) -> dict[str, Any]:
+        """Keys this stage adds to its manifest entry beside version, params and shards; none by default.
+
+        Parameters
+        ----------
+        shards : sequence of PlannedShard
+            The stage's built shards (failed items left out).
+        store : ShardStore
+            Their data dir; what is read from it must follow from the shards' inputs.
+        """
+        return {}
+
     def planned(
         self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
     ) -> list[PlannedShard]:

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,7 +44,7 @@ import torch
 from torch.utils.data import Dataset, Sampler
 
 from osgd.contract.files import is_uri
-from osgd.contract.samples import Sample, decode_row, sample_shards, samples_vocabulary
+from osgd.contract.samples import Sample, decode_row, sample_shards, samples_vocabulary, shard_sample_models
 
 logger = logging.getLogger(__name__)
 
@@ -436,6 +436,24 @@ class SamplesDataset(Dataset):
     def shard_keys(self) -> list[str]:
         """Keys (file stems) of the shards read, in order."""
         return [path.stem for path in self.shards]
+
+    def models_shown(self, model_ids: Collection[str]) -> dict[str, str]:
+        """Which of ``model_ids`` the objects of this dataset's items show, each with the first sample showing it.
+
+        Reads the ``objects`` column of each shard (``osgd.contract.samples.shard_sample_models``); the
+        objects are the sample's annotated ones, those visible enough to keep (docs/samples.md, "Objects").
+        """
+        wanted = set(model_ids)
+        rows: dict[int, set[int]] = {}
+        for shard_number, row in self.index:
+            rows.setdefault(shard_number, set()).add(row)
+        shown: dict[str, str] = {}
+        for shard_number in sorted(rows) if wanted else ():
+            for row, (sample_id, _, models) in enumerate(shard_sample_models(self.shards[shard_number])):
+                if row in rows[shard_number]:
+                    for model_id in wanted.intersection(models):
+                        shown.setdefault(model_id, sample_id)
+        return shown
 
     def read_sample(self, item: int) -> Sample:
         """The decoded sample of item ``item``; keeps the last shard read in memory."""

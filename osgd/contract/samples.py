@@ -72,6 +72,8 @@ class Sample:
         3-D grasp centres in the camera frame, metres.
     grasp_quaternions : (G, 4) float64
         Gripper frames in the camera frame.
+    model_ids : tuple of str
+        The model id of each annotated object (row of ``boxes``).
     """
 
     sample_id: str
@@ -93,6 +95,7 @@ class Sample:
     grasp_tasks: np.ndarray
     grasp_positions: np.ndarray
     grasp_quaternions: np.ndarray
+    model_ids: tuple[str, ...] = ()
 
 
 def decode_row(row: dict[str, Any]) -> Sample:
@@ -131,6 +134,7 @@ def decode_row(row: dict[str, Any]) -> Sample:
         grasp_tasks=np.array([TASK_INDEX[grasp["task"]] for grasp in grasps], dtype=np.int64),
         grasp_positions=np.array([grasp["position"] for grasp in grasps], dtype=np.float64).reshape(-1, 3),
         grasp_quaternions=np.array([grasp["quaternion"] for grasp in grasps], dtype=np.float64).reshape(-1, 4),
+        model_ids=tuple(str(obj["model_id"]) for obj in objects),
     )
 
 
@@ -177,6 +181,55 @@ def sample_shards(data_dir: str | Path, pipeline: str | None = None) -> list[Loc
     if not paths:
         raise FileNotFoundError(f"{store.root / 'samples'}: no samples shards; run `osgd render` first")
     return paths
+
+
+def held_out_models(data_dir: str | Path, pipeline: str | None = None) -> frozenset[str]:
+    """The model ids a data dir's manifest declares held out of training: its tools of the test split.
+
+    Where the scenes stage splits by model (``[scenes.split] by = "model"``),
+    the manifest's samples entry lists them under ``split.test_models``
+    (docs/scenes.md, "Splits by tool"). Empty where the split is by scene, or
+    where no manifest has samples.
+
+    Parameters
+    ----------
+    data_dir : path
+    pipeline : str, optional
+        The manifest to read; as :func:`sample_shards` chooses it otherwise.
+
+    Raises
+    ------
+    ValueError
+        If no pipeline is given and several manifests have samples, or the
+        list is not a list of strings.
+    """
+    store = ShardReader(data_dir)
+    if pipeline is None:
+        pipeline = _only_samples_pipeline(store)
+    manifest = store.read_manifest(pipeline) if pipeline is not None else None
+    models = ((manifest or {}).get("stages", {}).get("samples", {}).get("split") or {}).get("test_models", [])
+    if not isinstance(models, list) or not all(isinstance(model, str) for model in models):
+        raise ValueError(f"{store.manifest_path(pipeline)}: stages.samples.split.test_models is {models!r}, "
+                         "expected a list of model ids")
+    return frozenset(models)
+
+
+def shard_sample_models(path: Location) -> list[tuple[str, str, tuple[str, ...]]]:
+    """``(sample_id, split, model ids of its objects)`` of every row of a samples shard, in row order.
+
+    Reads only the ``sample_id``, ``split`` and ``objects`` columns.
+
+    Raises
+    ------
+    ShardError
+        If the file is not readable Parquet of the samples schema.
+    """
+    try:
+        table = pq.read_table(path, columns=["sample_id", "split", "objects"])
+    except (OSError, ValueError, KeyError) as error:
+        raise ShardError(f"{path}: cannot read the sample ids, splits and objects ({error})") from error
+    return [(row["sample_id"], row["split"], tuple(str(obj["model_id"]) for obj in row["objects"]))
+            for row in table.to_pylist()]
 
 
 def _only_samples_pipeline(store: ShardReader) -> str | None:

@@ -16,15 +16,18 @@ per scene (``sample_id = f"{scene_id}_view{n}"``). Per sample:
    camera frame, filtered and projected (:mod:`osgd.samples.projection`,
    :mod:`osgd.samples.collision`).
 
-The split (train or test) is a function of the scene id alone (sha256), so
-a scene stays in its split whatever else changes.
+The split (train or test) is, by default, a function of the scene id alone
+(sha256), so a scene stays in its split whatever else changes. Where the
+scenes stage holds tools out (``[scenes.split] by = "model"``,
+:mod:`osgd.scenes.split`) a sample is test when every object of its scene is
+a test model; the samples items then carry the scenes' split settings.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
+import json
 import logging
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -56,6 +59,7 @@ from osgd.samples.projection import (
 )
 from osgd.samples.renderer import BACKENDS, Renderer, Rendering, RenderObject, hull_vertices, make_renderer
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
+from osgd.scenes.split import SplitParams, model_sides, scene_split, unit_hash
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_once_per_worker
 from osgd.store import ShardStore
 
@@ -66,20 +70,55 @@ log = logging.getLogger(__name__)
 _STAGE_SALT = 0x5A3D1E
 
 
-def sample_payload(key_params: dict, seed: int, scenes_item: str) -> dict:
+#: The ``models`` columns the split by model reads (:func:`osgd.scenes.split.model_sides`).
+SPLIT_COLUMNS: tuple[str, ...] = ("model_id", "name", "category")
+
+
+def sample_payload(key_params: dict, seed: int, scenes_item: str, split: dict | None = None) -> dict:
     """The payload of the samples item of one scenes shard: all its samples depend on besides the shards.
 
     The parameters (``renderer`` already resolved), the seed, the scenes
     item, the camera's depth range and the gripper, which the build would
-    otherwise read from modules (``osgd.camera``, ``osgd.gripper``).
+    otherwise read from modules (``osgd.camera``, ``osgd.gripper``), and,
+    where the scenes split by model, their split settings (``split``, the
+    JSON of a :class:`~osgd.scenes.split.SplitParams`; absent otherwise).
     """
-    return {
+    payload = {
         "params": key_params,
         "seed": int(seed),
         "scenes_item": scenes_item,
         "depth_range": [KINECT_V2.near, KINECT_V2.far],
         "gripper": dataclasses.asdict(PANDA),
     }
+    if split is not None:
+        payload["split"] = split
+    return payload
+
+
+def scenes_split(scenes: Sequence[PlannedShard]) -> dict | None:
+    """The split settings of the planned scenes shards (their ``[scenes.split]``), or None for the default.
+
+    Raises
+    ------
+    ValueError
+        If the shards were planned with different split settings.
+    """
+    found = {json.dumps(shard.item.payload.get("params", {}).get("split"), sort_keys=True) for shard in scenes}
+    if len(found) > 1:
+        raise ValueError(f"the scenes shards were planned with different [scenes.split] settings: {sorted(found)}")
+    return json.loads(found.pop()) if found else None
+
+
+def split_models(store: ShardStore, model_keys: Sequence[str], split: dict) -> dict[str, str]:
+    """The side (train or test) of every model of the ``models`` shards ``model_keys`` under ``split``.
+
+    Raises
+    ------
+    ValueError
+        If ``split`` names a test model the shards do not hold.
+    """
+    rows = store.read_many("models", list(model_keys), columns=list(SPLIT_COLUMNS)).to_pylist()
+    return model_sides(rows, SplitParams(**split))
 
 
 class SamplesStageParams(StageParams):
@@ -87,7 +126,8 @@ class SamplesStageParams(StageParams):
 
     views_per_scene: int = Field(1, ge=1, description="Depth images per scene, each from its own camera pose.")
     test_fraction: float = Field(
-        0.1, ge=0.0, le=1.0, description="Share of scenes in the test split (paper: not stated; 90/10 is ours)."
+        0.1, ge=0.0, le=1.0, description="Share of scenes in the test split (paper: not stated; 90/10 is ours); "
+        "unused where [scenes.split] by = 'model', whose scene_fraction and held-out tools decide."
     )
     renderer: Literal["auto", "egl", "embree", "tiny"] = Field(
         "auto", description="Rendering backend; auto tries embree, egl, tiny in that order."
@@ -165,9 +205,8 @@ class SamplesStageParams(StageParams):
 
 
 def split_of(scene_id: str, test_fraction: float) -> str:
-    """``"test"`` or ``"train"``, from the sha256 of the scene id alone."""
-    value = int.from_bytes(hashlib.sha256(scene_id.encode("utf-8")).digest()[:8], "big") / 2.0**64
-    return "test" if value < test_fraction else "train"
+    """``"test"`` or ``"train"``, from the sha256 of the scene id alone (:func:`osgd.scenes.split.unit_hash`)."""
+    return "test" if unit_hash(scene_id) < test_fraction else "train"
 
 
 def sample_rng(seed: int, scene_index: int, view: int) -> np.random.Generator:
@@ -214,6 +253,7 @@ def render_sample(
     renderer: Renderer,
     gripper: Gripper = PANDA,
     depth_range: tuple[float, float] = (KINECT_V2.near, KINECT_V2.far),
+    sides: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
     """One row of the ``samples`` table.
 
@@ -234,6 +274,10 @@ def render_sample(
         The hand whose collisions and finger width the grasps are judged with.
     depth_range : (float, float)
         The camera's near and far limits, m: depth outside reads 0.
+    sides : mapping of model id to "train" or "test", optional
+        Where the split is by model: the sample's split is
+        :func:`osgd.scenes.split.scene_split` of the scene's models. None: by
+        scene id against ``params.test_fraction``.
 
     Returns
     -------
@@ -273,7 +317,8 @@ def render_sample(
     return {
         "sample_id": f"{scene['scene_id']}_view{view}",
         "scene_id": scene["scene_id"],
-        "split": split_of(scene["scene_id"], params.test_fraction),
+        "split": (split_of(scene["scene_id"], params.test_fraction) if sides is None
+                  else scene_split([obj["model_id"] for obj in objects], sides)),
         "height": intrinsics.height,
         "width": intrinsics.width,
         "depth": encode_depth(depth),
@@ -554,11 +599,23 @@ class SamplesStage(Stage):
         scenes = upstream.get("scenes", ())
         if scenes:  # resolving auto may probe EGL: only when there is something to render
             key_params["renderer"] = resolve_backend(params.renderer)
+        split = scenes_split(scenes)
         items = []
         for shard in scenes:
-            items.append(WorkItem(f"samples_{shard.item.item_id}", sample_payload(key_params, seed, shard.item.item_id),
+            items.append(WorkItem(f"samples_{shard.item.item_id}",
+                                  sample_payload(key_params, seed, shard.item.item_id, split),
                                   {"scenes": (shard.key,), **shared}))
         return items
+
+    def manifest_extra(self, shards: Sequence[PlannedShard], store: ShardStore) -> dict[str, Any]:
+        """Where the split is by model: ``split``, the settings with the sorted ``train_models`` and ``test_models``."""
+        split = next((shard.item.payload["split"] for shard in shards if "split" in shard.item.payload), None)
+        if split is None:
+            return {}
+        sides = split_models(store, shards[0].item.inputs.get("models", ()), split)
+        return {"split": {**split,
+                          "train_models": sorted(model for model, side in sides.items() if side == "train"),
+                          "test_models": sorted(model for model, side in sides.items() if side == "test")}}
 
     def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
         params = SamplesStageParams(**item.payload["params"])
@@ -573,12 +630,20 @@ class SamplesStage(Stage):
             raise KeyError(f"scenes shard {item.inputs['scenes'][0]} names models not in the models table: {missing}")
         models = {model_id: every_model[model_id] for model_id in model_ids}
         stable_grasps = {model_id: every_stable[model_id] for model_id in model_ids}
+        sides = split_models(store, item.inputs.get("models", ()), item.payload["split"]) \
+            if "split" in item.payload else None
         renderer, notes = resolve_renderer(params.renderer)
         rows = [
-            render_sample(scene, view, models, stable_grasps, params, seed, renderer, gripper, (near, far))
+            render_sample(scene, view, models, stable_grasps, params, seed, renderer, gripper, (near, far), sides)
             for scene in scenes
             for view in range(params.views_per_scene)
         ]
+        if sides is not None:
+            mixed = [scene["scene_id"] for scene in scenes
+                     if len({sides[obj["model_id"]] for obj in scene["objects"]}) > 1]
+            if mixed:
+                notes.append(f"{len(mixed)} of {len(scenes)} scenes mix train and test models and are test "
+                             f"(e.g. {mixed[0]}); the scenes stage draws no such pile")
         empty = [row["sample_id"] for row in rows if not row["grasps"]]
         if empty:
             notes.append(f"{len(empty)} of {len(rows)} samples have no grasp (e.g. {empty[0]})")

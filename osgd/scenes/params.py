@@ -13,6 +13,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from osgd.contract.taxonomy import CATEGORIES
+from osgd.scenes.split import SplitParams
 from osgd.stage import StageParams
 
 
@@ -111,6 +112,13 @@ class ScenesStageParams(StageParams):
                     "useMaximalCoordinates) instead of Featherstone multibodies with a free base: the same "
                     "contacts and friction, solved by Bullet's rigid-body solver, which stacks faster with piles "
                     "of the same statistics and stillness (docs/scenes.md); False: Featherstone multibodies",
+    )
+
+    split: SplitParams = Field(
+        SplitParams(), json_schema_extra={"omit_default": True},
+        description="which tools and piles are held out for test ([scenes.split]: by, model_fraction, "
+                    "per_category, test_models, scene_fraction; osgd.scenes.split, docs/scenes.md); the default, "
+                    "by = 'scene', draws every pile from every model and leaves the split to samples.test_fraction",
     )
 
     @model_validator(mode="after")
