@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 from dataclasses import fields
 from pathlib import Path
 
@@ -44,8 +45,8 @@ def test_every_training_option_is_an_option_of_both_commands():
     train_help = _invoke("train", "--help").output
     reproduce_help = _invoke("reproduce", "--help").output
     for spec in fields(TrainConfig):
-        assert f"--{option_name(spec.name)}" in train_help, spec.name
-        assert spec.metadata["help"].split()[0] in train_help, spec.name
+        assert spec.name == "eval_max_samples" or f"--{option_name(spec.name)}" in train_help, spec.name
+        assert spec.metadata["help"].split()[0] in train_help + reproduce_help, spec.name
         per_model = spec.name in ("data", "out", "pipeline", "model", "device", "seed", "resume", "init",
                                   "train_only", "split")
         assert per_model or f"--{option_name(spec.name)}" in reproduce_help, spec.name
@@ -87,6 +88,13 @@ def test_model_options_come_nested_or_dotted_and_unknown_names_are_refused():
     assert model_options(options_dict(nested)) == nested
     with pytest.raises(ValueError, match=r"unknown model option rpn\.anchors; known: backbone\.norm"):
         model_options({"rpn.anchors": [1]})
+    assert model_options({"crf.bandwidth": 1}).crf.bandwidth == 1.0  # a whole number where a number is asked
+    for values, message in (({"box_head.size": 1.5}, "box_head.size=1.5: expected a whole number"),
+                            ({"backbone.fpn_norm": "False"}, "backbone.fpn_norm='False': expected true or false"),
+                            ({"rpn.anchor_sizes": "abc"}, "rpn.anchor_sizes='abc': expected a list of whole numbers"),
+                            ({"grasp_head.channels": [1]}, "grasp_head.channels=[1]: expected a whole number")):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            model_options(values)
 
 
 def test_the_stored_options_of_the_code_before_the_groups_migrate():
@@ -102,8 +110,13 @@ def test_the_stored_options_of_the_code_before_the_groups_migrate():
         REMOVED_FLAT_OPTIONS)
     fcgn = json.loads((TRACES / "fcgn-task-config-d9d70b4.json").read_text())["model_options"]
     assert stored_options(fcgn).fcgn.channels == fcgn["fcgn_channels"] == 32
-    with pytest.raises(ValueError, match=r"grasp_object_map=True.*at the commit that trained it"):
+    with pytest.raises(ValueError, match=r"grasp_object_map=True.*evaluate it at the commit that trained it"):
         stored_options({**old, "grasp_object_map": True})
+    # an option that changed only the training targets: the model loads, its training cannot go on
+    trained_otherwise = {**old, "grasp_regression_radius": 1.0}
+    assert stored_options(trained_otherwise) == migrated
+    with pytest.raises(ValueError, match=r"trained with .*grasp_regression_radius=1\.0.*train it at the commit"):
+        stored_options(trained_otherwise, training=True)
 
 
 def test_a_checkpoint_with_flat_options_loads_and_predicts_the_same(data_dir, tmp_path):

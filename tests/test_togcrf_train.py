@@ -114,16 +114,25 @@ def test_run_dir_checkpoint_and_resume_match_an_uninterrupted_run(data_dir, tmp_
 
 def test_the_checkpoint_holds_the_model_and_the_training_state_lies_beside_it(data_dir, tmp_path):
     """checkpoint.pt is what evaluation needs (its weights and config), about the model's size; --resume also
-    needs training-state.pt, and says so in one line when it is missing."""
+    needs training-state.pt, of the checkpoint's epoch, and says so in one line when there is none."""
     run_dir = tmp_path / "run"
     train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw"))
     weights = sum(value.numel() * value.element_size()
                   for value in torch.load(run_dir / "checkpoint.pt", weights_only=True)["model"].values())
     assert (run_dir / "checkpoint.pt").stat().st_size < 1.05 * weights + 2**20
     assert (run_dir / "training-state.pt").stat().st_size > 1.9 * weights  # AdamW's two moments
-    (run_dir / "training-state.pt").unlink()
-    with pytest.raises(ValueError, match=r"--resume: .*training-state\.pt is missing"):
-        train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw", epochs=2, resume=True))
+    # an interrupt between the two writes of an epoch: the state of the epoch before is still there
+    state = run_dir / "training-state.pt"
+    state.rename(run_dir / "training-state.previous.pt")
+    torch.save({**torch.load(run_dir / "training-state.previous.pt", weights_only=True), "epoch": 1}, state)
+    assert train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw", epochs=2, resume=True))["epoch"] == 1
+    assert not (run_dir / "training-state.previous.pt").exists()
+    state.write_bytes(b"not a state")
+    with pytest.raises(ValueError, match=r"--resume: .*training-state\.pt is not a readable training state"):
+        train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw", epochs=3, resume=True))
+    state.unlink()
+    with pytest.raises(ValueError, match=r"--resume: no training state of epoch 1 beside .*none"):
+        train(quick_config(data_dir, run_dir, model="tog", optimizer="adamw", epochs=3, resume=True))
 
 
 def test_the_depth_reference_trained_with_is_the_one_a_policy_feeds(data_dir, tmp_path):
@@ -224,8 +233,8 @@ def test_cli_trains_and_refuses_to_overwrite(data_dir, tmp_path):
     assert bad.exit_code == 1 and "nope" in bad.output
 
 
-#: Settings under which the detector overfits a few synthetic samples from scratch (measured in issue #8:
-#: lr 0.02 at batch 2 is unstable, lr 0.005-0.01 fits). Every grasp RoI of the RCNN sample trains the grasp
+#: Settings under which the detector overfits a few synthetic samples from scratch (lr 0.02 at
+#: batch 2 is unstable, lr 0.005-0.01 fits). Every grasp RoI of the RCNN sample trains the grasp
 #: branch (16 per image, the model default), so the stability head sees enough positives per step.
 FIT_OPTIONS = {**SMALL, "grasp_head.rois_per_image": 16}
 

@@ -52,6 +52,14 @@ def current_vocabulary() -> dict[str, list[str]]:
     return {field: list(names) for field, names in VOCABULARY.items()}
 
 
+def one_line_of(error: BaseException) -> str:
+    """What ``torch.load`` says of a file it could not read, in one line."""
+    first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+    if first.startswith("Weights only load failed"):
+        return "it needs unpickling code or objects, which is never done; a togcrf file holds tensors"
+    return first
+
+
 def checkpoint_path(path: str | Path) -> Path:
     """``path`` itself, or ``path/checkpoint.pt`` when ``path`` is a run dir."""
     path = Path(path)
@@ -66,8 +74,8 @@ def save_checkpoint(path: Path, state: Mapping[str, Any], vocabulary: Mapping[st
     path : path
         The file to write.
     state : mapping
-        ``model``, ``optimizer``, ``scheduler``, ``scaler``, ``config``,
-        ``epoch``, ``data``, ``trained_seconds``, ``stopped_by_budget``.
+        ``model``, ``config``, ``epoch``, ``data``, ``trained_seconds``,
+        ``stopped_by_budget``.
     vocabulary : mapping
         ``{"categories": [...], "tasks": [...]}`` of the data trained on.
     """
@@ -94,10 +102,7 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
     try:
         checkpoint = torch.load(path, map_location=device, weights_only=True)
     except (RuntimeError, ValueError, EOFError, OSError, pickle.UnpicklingError) as error:
-        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        if first.startswith("Weights only load failed"):
-            first = "it needs unpickling code or objects, which is never done; a togcrf checkpoint holds tensors"
-        raise ValueError(f"{path}: not a readable togcrf checkpoint ({first})") from error
+        raise ValueError(f"{path}: not a readable togcrf checkpoint ({one_line_of(error)})") from error
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
         raise ValueError(f"{path}: not a togcrf checkpoint (needs 'model' and 'config')")
     checkpoint["config"] = {**CONFIG_ADDED_LATER, **checkpoint["config"]}

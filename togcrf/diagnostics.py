@@ -90,7 +90,7 @@ def neighbourhood_mean(stability: np.ndarray, angle_radius: int) -> np.ndarray:
 
     Parameters
     ----------
-    stability : (K,) float, K = grid * grid * 4 in candidate order (grid: 7, or the model's ``grasp_grid``)
+    stability : (K,) float, K = 7 * 7 * 4 in candidate order
 
     Returns
     -------

@@ -32,7 +32,7 @@ This module holds the branch's own parts (anchors over the image, training
 targets, candidates of each box), which :class:`togcrf.model.GraspDetector`
 composes; it imports nothing from ``togcrf.model``. The model is
 ``togcrf.model.build_model("fcgn-task")``, its options
-:class:`togcrf.model.FcgnOptions`.
+:class:`togcrf.model.options.FcgnOptions` (the ``fcgn`` option group).
 """
 
 from __future__ import annotations

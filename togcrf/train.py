@@ -12,8 +12,10 @@ run dir holds:
   with ``val_samples``, the held-out ``val_mAP``, ``val_mAP-G`` and ``val_Acc-T top1`` of the epoch's
   model (``togcrf curves`` draws them);
 - ``train.log``: the progress lines (step, losses, images/s, time left);
-- ``checkpoint.pt``: the latest epoch ("model", "optimizer", "scheduler", "scaler", "epoch", "config",
-  "data", "stopped_by_budget", "trained_seconds"; ``togcrf.checkpoint``);
+- ``checkpoint.pt``: the latest epoch's model ("model", "epoch", "config", "data", "stopped_by_budget",
+  "trained_seconds"; ``togcrf.checkpoint``), and ``training-state.pt``: what ``--resume`` needs besides
+  ("optimizer", "scheduler", "scaler", "epoch"), written with it so that the run dir always holds a
+  checkpoint and the state of its epoch;
 - ``tensorboard/``: the same scalars, when the ``tensorboard`` package is installed.
 
 Defaults follow the paper (Section V): 10 epochs, SGD, lr 0.001, momentum 0.9. Our additions: a linear
@@ -33,6 +35,7 @@ import json
 import logging
 import math
 import os
+import pickle
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -43,8 +46,16 @@ import typer
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from osgd.contract.samples import held_out_models
 from togcrf import distributed
-from togcrf.checkpoint import check_vocabulary, current_vocabulary, read_checkpoint, save_checkpoint
+from togcrf.checkpoint import (
+    CHECKPOINT_FILE,
+    check_vocabulary,
+    current_vocabulary,
+    one_line_of,
+    read_checkpoint,
+    save_checkpoint,
+)
 from togcrf.config import TrainConfig, command_parameters, config_from_command, preset
 from togcrf.data import SamplesDataset, ShardGroupedSampler, collate
 from togcrf.engine import (
@@ -141,6 +152,12 @@ def _build_run(config: TrainConfig) -> tuple[TrainingRun, dict[str, Any], dict[s
                              depth_reference=config.depth_reference)
     check_vocabulary(current_vocabulary(), dataset.vocabulary, f"the model of this code (--model {config.model})",
                      f"{config.data}/samples")
+    leaked = dataset.models_shown(held_out_models(config.data, config.pipeline))
+    if leaked:
+        raise ValueError(f"{config.data}: the manifest holds models out for test, but the {config.split!r} samples "
+                         f"trained on show {len(leaked)} of them: {', '.join(sorted(leaked))} (e.g. in "
+                         f"{leaked[min(leaked)]}); rebuild the samples with the scenes' split, or train on another "
+                         "data dir")
     if config.val_samples and config.val_samples >= len(dataset):
         raise ValueError(f"--val-samples {config.val_samples}: the training split has only {len(dataset)}")
     kept = len(dataset) - config.val_samples
@@ -221,35 +238,62 @@ def _with_this_implementation(state: dict[str, Any], optimizer: torch.optim.Opti
 TRAINING_STATE_FILE = "training-state.pt"
 
 
-def _save_training_state(path: Path, run: TrainingRun, epoch: int) -> None:
-    """Write the run's optimiser, schedule and scaler state of ``epoch`` atomically."""
-    temporary = path.with_suffix(".pt.tmp")
+#: The training state of the epoch before, kept until the checkpoint of the new epoch is written: an interrupt
+#: between the two writes leaves one state that goes with the checkpoint on disk.
+PREVIOUS_TRAINING_STATE_FILE = "training-state.previous.pt"
+
+
+def _save_epoch(run_dir: Path, run: TrainingRun, epoch: int, checkpoint: dict[str, Any]) -> None:
+    """Write the training state and the checkpoint of ``epoch``, each atomically, so that the run dir always
+    holds a checkpoint and the training state of its epoch (the previous state is kept while the new
+    checkpoint is written)."""
+    state_path, previous = run_dir / TRAINING_STATE_FILE, run_dir / PREVIOUS_TRAINING_STATE_FILE
+    if state_path.exists():
+        os.replace(state_path, previous)
+    temporary = state_path.with_suffix(".pt.tmp")
     torch.save({"optimizer": run.optimizer.state_dict(), "scheduler": run.scheduler.state_dict(),
                 "scaler": run.scaler.state_dict(), "epoch": epoch}, temporary)
-    os.replace(temporary, path)
+    os.replace(temporary, state_path)
+    save_checkpoint(run_dir / CHECKPOINT_FILE, checkpoint, run.dataset.vocabulary)
+    previous.unlink(missing_ok=True)
+
+
+def _read_training_state(path: Path, device: torch.device) -> dict[str, Any] | None:
+    """A training state file, None if there is none; a ValueError naming it if it is not one."""
+    if not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+    except (RuntimeError, ValueError, EOFError, OSError, pickle.UnpicklingError) as error:
+        raise ValueError(f"--resume: {path} is not a readable training state ({one_line_of(error)})") from error
+    if not isinstance(state, dict) or "optimizer" not in state:
+        raise ValueError(f"--resume: {path} is not a training state (needs 'optimizer')")
+    return state
 
 
 def _training_state(checkpoint_path: Path, checkpoint: dict[str, Any], device: torch.device) -> dict[str, Any]:
-    """The training state that goes with a checkpoint: ``training-state.pt`` beside it, or the checkpoint
-    itself where it holds one (checkpoints that kept the optimiser inside)."""
+    """The training state that goes with a checkpoint: ``training-state.pt`` beside it (or the state of the epoch
+    before, where an interrupt came between the two writes), or the checkpoint itself where it holds one
+    (checkpoints that kept the optimiser inside)."""
     if "optimizer" in checkpoint:
         return checkpoint
     path = checkpoint_path.parent / TRAINING_STATE_FILE
-    if not path.is_file():
-        raise ValueError(f"--resume: {path} is missing; the checkpoint alone cannot continue the run exactly "
-                         "(use --init to start a new run from its weights)")
-    state = torch.load(path, map_location=device, weights_only=True)
-    if state.get("epoch") != checkpoint.get("epoch"):
-        raise ValueError(f"--resume: {path} is of epoch {state.get('epoch')}, {checkpoint_path} of epoch "
-                         f"{checkpoint.get('epoch')}; they were not written together")
-    return state
+    states = [_read_training_state(candidate, device)
+              for candidate in (path, checkpoint_path.parent / PREVIOUS_TRAINING_STATE_FILE)]
+    matching = [state for state in states if state is not None and state.get("epoch") == checkpoint.get("epoch")]
+    if not matching:
+        found = ", ".join(f"epoch {state.get('epoch')}" for state in states if state is not None) or "none"
+        raise ValueError(f"--resume: no training state of epoch {checkpoint.get('epoch')} beside "
+                         f"{checkpoint_path} ({path}: {found}); the checkpoint alone cannot continue the run "
+                         "exactly (use --init to start a new run from its weights)")
+    return matching[0]
 
 
 def _resume(run: TrainingRun, checkpoint_path: Path, stored_config: dict[str, Any]) -> int:
     """Load a checkpoint into the run; the first epoch still to train."""
     checkpoint = read_checkpoint(checkpoint_path, run.device)
     saved = {**checkpoint["config"],
-             "model_options": options_dict(stored_options(checkpoint["config"].get("model_options")))}
+             "model_options": options_dict(stored_options(checkpoint["config"].get("model_options"), training=True))}
     for key in _RESUME_MUST_MATCH:
         if saved.get(key) != stored_config.get(key):
             raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {saved.get(key)!r}, "
@@ -315,11 +359,9 @@ def train(config: TrainConfig, progress: Callable[[Progress], None] | None = Non
             last_row.update(validation_metrics(run))
             rows.append(last_row)
             _write_metrics(metrics_path, rows)
-            _save_training_state(run_dir / TRAINING_STATE_FILE, run, epoch)
-            save_checkpoint(checkpoint_path, {
+            _save_epoch(run_dir, run, epoch, {
                 "model": run.model.state_dict(), "epoch": epoch, "config": stored_config, "data": data_identity,
-                "stopped_by_budget": run.out_of_time, "trained_seconds": run.trained_seconds},
-                run.dataset.vocabulary)
+                "stopped_by_budget": run.out_of_time, "trained_seconds": run.trained_seconds})
         distributed.barrier(run.context)
         if writer is not None:
             for key in ("loss", *LOSS_KEYS, "train_acc_t_top1", *VALIDATION_COLUMNS):
@@ -476,7 +518,7 @@ def _train_command_signature():
                                  "it.")
     parameters = [inspect.Parameter("preset_name", inspect.Parameter.KEYWORD_ONLY, default=None,
                                     annotation=Annotated[str | None, preset_option]),
-                  *command_parameters(required=("data", "out"))]
+                  *command_parameters(excluded=("eval_max_samples",), required=("data", "out"))]
     return inspect.Signature(parameters)
 
 

@@ -14,6 +14,7 @@ that were removed from the code with a value that changes the model.
 
 from __future__ import annotations
 
+import typing
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -237,12 +238,35 @@ def model_options(values: dict[str, Any] | ModelOptions | None = None) -> ModelO
         raise ValueError(f"unknown model option{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}; "
                          f"known: {', '.join(known)}")
     groups = {}
+    hints = {group: typing.get_type_hints(kind) for group, kind in GROUPS.items()}
     for group, kind in GROUPS.items():
         given = {name.split(".", 1)[1]: value for name, value in flat.items() if name.startswith(f"{group}.")}
-        if group == "rpn" and "anchor_sizes" in given:
-            given["anchor_sizes"] = tuple(int(size) for size in given["anchor_sizes"])
-        groups[group] = kind(**given)
+        groups[group] = kind(**{name: _checked(f"{group}.{name}", value, hints[group][name])
+                                 for name, value in given.items()})
     return ModelOptions(**groups)
+
+
+def _checked(name: str, value: Any, kind: Any) -> Any:
+    """``value`` if it is of the option's type (an int where a float is asked is taken); else a ValueError."""
+    if kind is bool:
+        ok = isinstance(value, bool)
+        expected = "true or false"
+    elif kind is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        expected = "a whole number"
+    elif kind is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        expected = "a number"
+    elif kind is str:
+        ok = isinstance(value, str)
+        expected = "a string"
+    else:  # tuple[int, ...]
+        ok = isinstance(value, list | tuple) and all(isinstance(item, int) and not isinstance(item, bool)
+                                                     for item in value)
+        expected = "a list of whole numbers, e.g. [27,53,107]"
+    if not ok:
+        raise ValueError(f"model option {name}={value!r}: expected {expected}")
+    return float(value) if kind is float else tuple(value) if isinstance(value, list) else value
 
 
 def with_options(options: ModelOptions, values: dict[str, Any]) -> ModelOptions:
@@ -277,13 +301,19 @@ FLAT_NAMES = {
     "fcgn_candidates_per_box": "fcgn.candidates_per_box",
 }
 
-#: Flat options that were removed from the code, with the value under which a model had none of them.
-REMOVED_FLAT_OPTIONS = {
-    "grasp_positive_radius": 0.0, "grasp_ignore_radius": None, "grasp_regression_radius": 0.0,
-    "grasp_object_map": False, "grasp_ranking_matches": False, "grasp_confidence": False,
-    "grasp_confidence_trains_features": False, "grasp_stability_per_category": False, "grasp_fine_map": False,
-    "grasp_grid": 7, "grasp_context_cells": 0, "weight_object_map": 1.0, "weight_confidence": 1.0,
+#: Flat options that were removed from the code, with the value under which a model had none of them: those that
+#: gave the model other layers or outputs (a checkpoint that used one cannot be built) ...
+REMOVED_LAYER_OPTIONS = {
+    "grasp_object_map": False, "grasp_confidence": False, "grasp_stability_per_category": False,
+    "grasp_fine_map": False, "grasp_grid": 7, "grasp_context_cells": 0,
 }
+#: ... and those that changed only its training targets or losses (its model loads; its training cannot go on).
+REMOVED_TRAINING_OPTIONS = {
+    "grasp_positive_radius": 0.0, "grasp_ignore_radius": None, "grasp_regression_radius": 0.0,
+    "grasp_ranking_matches": False, "grasp_confidence_trains_features": False, "weight_object_map": 1.0,
+    "weight_confidence": 1.0,
+}
+REMOVED_FLAT_OPTIONS = REMOVED_LAYER_OPTIONS | REMOVED_TRAINING_OPTIONS
 
 
 def is_flat(values: dict[str, Any]) -> bool:
@@ -291,28 +321,31 @@ def is_flat(values: dict[str, Any]) -> bool:
     return any(name in FLAT_NAMES or name in REMOVED_FLAT_OPTIONS for name in values)
 
 
-def migrate_flat_options(values: dict[str, Any]) -> dict[str, Any]:
-    """Flat stored options as dotted names; the removed options must hold their neutral value.
+def migrate_flat_options(values: dict[str, Any], training: bool = False) -> dict[str, Any]:
+    """Flat stored options as dotted names; the removed options must hold their neutral value (those that
+    changed only training, when the options are to train on: ``training``).
 
     Raises
     ------
     ValueError
-        A removed option with another value (the model it describes cannot be built), or an unknown name.
+        A removed option with another value, or an unknown name.
     """
-    changed = {name: value for name, value in values.items()
-               if name in REMOVED_FLAT_OPTIONS and value != REMOVED_FLAT_OPTIONS[name]}
+    removed = REMOVED_FLAT_OPTIONS if training else REMOVED_LAYER_OPTIONS
+    changed = {name: value for name, value in values.items() if name in removed and value != removed[name]}
     if changed:
         listed = ", ".join(f"{name}={value!r}" for name, value in sorted(changed.items()))
-        raise ValueError(f"its model uses options this code no longer has ({listed}); evaluate it at the "
-                         "commit that trained it")
+        what = "was trained with" if training else "uses"
+        raise ValueError(f"its model {what} options this code no longer has ({listed}); "
+                         f"{'train' if training else 'evaluate'} it at the commit that trained it")
     unknown = sorted(set(values) - set(FLAT_NAMES) - set(REMOVED_FLAT_OPTIONS))
     if unknown:
         raise ValueError(f"unknown stored model options {', '.join(unknown)}")
     return {FLAT_NAMES[name]: value for name, value in values.items() if name in FLAT_NAMES}
 
 
-def stored_options(values: dict[str, Any] | None) -> ModelOptions:
-    """The options a checkpoint or config.json stores, in either form (flat ones migrated)."""
+def stored_options(values: dict[str, Any] | None, training: bool = False) -> ModelOptions:
+    """The options a checkpoint or config.json stores, in either form (flat ones migrated; ``training``: to
+    resume its training, which refuses also the removed options that changed only training)."""
     values = values or {}
-    return model_options(migrate_flat_options(values) if is_flat(values) else values)
+    return model_options(migrate_flat_options(values, training) if is_flat(values) else values)
 
