@@ -228,7 +228,7 @@ def write_synthetic_samples(store: ShardStore, count: int, seed: int = 0, test_e
 
 
 def silhouette_pixels(obj: Any, intrinsics: Any, pose: Any) -> int:
-    """Pixels the object covers alone, the way the samples stage counted them before issue #22.
+    """Pixels the object covers alone, counted the direct way (a reference for the stage's faster count).
 
     A new embree scene of the posed mesh, world rays: the reference that
     ``osgd.samples.boxes.SilhouetteCounter`` and the embree renderer's

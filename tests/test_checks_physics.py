@@ -1,4 +1,4 @@
-"""The simulated pads obey the textbook: Coulomb slip and soft-finger torsion (issue #17).
+"""The simulated pads obey the textbook: Coulomb slip and soft-finger torsion.
 
 Real pybullet trials, bisected on the grip force (osgd/checks/calibration.py).
 """
@@ -19,7 +19,7 @@ from osgd.checks.params import ChecksStageParams
 from osgd.gripper import PANDA
 
 SOFT = ChecksStageParams(pad_contact="soft")
-#: The goal of issue #17: the simulated threshold within 15 % of the textbook's.
+#: The simulated threshold within 15 % of the textbook's.
 TOLERANCE = 0.15
 
 

@@ -78,7 +78,7 @@ def test_config_prints_every_parameter_and_reads_back_equal(tmp_path: Path) -> N
     assert "# scenes in all" in result.output
 
 
-# -- one line per problem (issue #14) ---------------------------------------------
+# -- one line per problem ---------------------------------------------
 
 
 GOLDEN = ROOT / "pipelines" / "golden.toml"

@@ -1,7 +1,8 @@
 """The data contract (osgd.contract): the boundary between the generator and the detector, and the vocabulary.
 
-togcrf reads the generator's data through ``osgd.contract`` only (its robot
-experiment, which runs the generator's physics and renderer, excepted);
+togcrf reads the generator's data through ``osgd.contract`` only; its robot
+experiment, which runs the generator's physics and renderer, also through
+``osgd.simulation``;
 the contract imports only the standard library, numpy, pyarrow and OpenCV.
 Samples shards and checkpoints record the vocabulary they were labelled
 and trained with, and a model refuses data labelled with another.

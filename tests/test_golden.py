@@ -76,7 +76,7 @@ DEPTH_STEP = 0.0011
 # Chaotic physics. The figures measured between two sets of kernels (OpenBLAS
 # SkylakeX against Haswell; x86-64-v2 against v3) on the golden pipeline:
 # 2 of 127 trials with another outcome (rigid pads, one criterion; with the
-# soft pads of issue #17, 4 of 127 under each criterion, 7 of 127 with
+# soft pads, 4 of 127 under each criterion, 7 of 127 with
 # another fail_reason), scene objects up to 6 mm apart, 12 % of a sample's
 # pixels, 17 of 23 sample grasps in both.
 #: checks: the share of trials that may have another outcome under one criterion.
@@ -419,13 +419,13 @@ def test_golden_pipeline_reproduces_the_committed_record(tmp_path: Path) -> None
 
 #: Stages whose keys changed since the AVX2 record was built, content the
 #: same. Paired by item. None now: grasps, whose payload gained the gripper's
-#: pads (issue #17), also changed content since (below).
+#: pads, also changed content since (below).
 AVX2_RECORD_REKEYED: frozenset[str] = frozenset()
 #: Stages whose content changed since the AVX2 record was built (at 4bf0b66):
-#: grasps (the sampled grasps' task labels follow the split along the tool,
-#: issue #16), checks (soft pads and the two criteria, issue #17) and samples,
+#: grasps (the sampled grasps' task labels follow the split along the tool),
+#: checks (soft pads and the two criteria) and samples,
 #: which keep the stable grasps (and whose payload now holds the renderer, the
-#: camera's depth range and the gripper, issue #14). Not compared until the
+#: camera's depth range and the gripper). Not compared until the
 #: record is rebuilt on an AVX2 processor; models and scenes are.
 AVX2_RECORD_STALE = frozenset({"grasps", "checks", "samples"})
 

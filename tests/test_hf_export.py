@@ -1,4 +1,4 @@
-"""``osgd export --format hf``: a folder the real ``datasets`` library opens offline (issue #72).
+"""``osgd export --format hf``: a folder the real ``datasets`` library opens offline.
 
 Synthetic samples (train and test) go through the command line; ``datasets.load_dataset`` then reads the
 folder with its card, and also as plain Parquet files, with the PNG columns as Image features.

@@ -1,4 +1,4 @@
-"""Installs by role (issue #72): the generator runs without torch, training runs without the generator's
+"""Installs by role: the generator runs without torch, training runs without the generator's
 native libraries.
 
 Each test runs a fresh interpreter whose import system refuses some modules: a ``sitecustomize`` on

@@ -1,4 +1,4 @@
-"""Items fail alone, with one line a person can act on (issue #14, items 2, 3 and 7).
+"""Items fail alone, with one line a person can act on.
 
 A models folder in the original OSGD layout and a folder of users' meshes,
 each with a good model and a broken one, go through every stage with the

@@ -477,7 +477,7 @@ def test_pictures_are_written(tmp_path):
     assert name in str(missing.value)  # the error lists models that are there
 
 
-# -- caches that cannot lie, errors a person can act on (issue #14) --------------------------
+# -- caches that cannot lie, errors a person can act on --------------------------
 
 
 def _box_mesh(length: float) -> trimesh.Trimesh:

@@ -1,4 +1,4 @@
-"""A data dir in an object store (``s3://``, issue #20), against a real local S3 server.
+"""A data dir in an object store (``s3://``), against a real local S3 server.
 
 The server is moto's (``moto[server]``, in the ``dev`` extra): a separate
 thread speaking the S3 protocol on a local port, reached through pyarrow's

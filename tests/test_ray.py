@@ -1,4 +1,4 @@
-"""The Ray backend (issue #20) on a real local Ray cluster: a head and two worker nodes.
+"""The Ray backend on a real local Ray cluster: a head and two worker nodes.
 
 Tests that need Ray skip where it is not installed (``pip install -e
 '.[ray]'``); the others check that osgd needs no Ray unless asked. The

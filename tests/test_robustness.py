@@ -1,4 +1,4 @@
-"""Bad inputs and crashes (issue #72): bounded reads of configs and inputs, unreadable sources named at the
+"""Bad inputs and crashes: bounded reads of configs and inputs, unreadable sources named at the
 models stage, no orphan workers, ``osgd status`` exit codes, progress lines written once."""
 
 from __future__ import annotations

@@ -366,7 +366,7 @@ def test_the_crop_frames_every_object_with_the_drawn_margin(built):
 
 
 def test_the_crop_from_hull_vertices_equals_the_crop_from_every_vertex():
-    """The window is computed from each mesh's hull vertices (issue #22); every vertex gives the same numbers."""
+    """The window is computed from each mesh's hull vertices; every vertex gives the same numbers."""
     from osgd.samples.stage import crop_around_objects  # noqa: PLC0415
 
     rng = np.random.default_rng(3)
@@ -533,7 +533,7 @@ def test_a_worker_world_reused_across_piles_judges_grasps_as_a_fresh_world_does(
                   Rotation.random(random_state=rng).as_matrix(), float(rng.uniform(0.01, 0.08))) for _ in range(40)]
         with pile_collider(models, scene["objects"], PANDA, 0.001, world=reused) as collider:
             decisions["reused"] += [collider.collides(*pose) for pose in poses]
-        with physics_client(gravity=0.0) as client:  # the pile loaded anew, as before issue #22
+        with physics_client(gravity=0.0) as client:  # the pile loaded anew: the reference
             bodies = [create_object_body(client, models[obj["model_id"]], np.asarray(obj["position"]),
                                          np.asarray(obj["quaternion"]), mass=0.0).body_id
                       for obj in scene["objects"]]

@@ -1,4 +1,4 @@
-"""Every input of a samples shard is in its key (issue #14, item 4)."""
+"""Every input of a samples shard is in its key."""
 
 from __future__ import annotations
 

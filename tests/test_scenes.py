@@ -247,7 +247,7 @@ def test_stored_penetration_in_the_reused_world_equals_a_fresh_world() -> None:
 
 
 def _stored_penetration_in_a_new_world(models: list, poses: list, params: ScenesStageParams) -> tuple:
-    """:func:`stored_penetration` as before issue #22: the pile loaded anew in an empty world."""
+    """:func:`stored_penetration` the direct way: the pile loaded anew in an empty world."""
     with physics_client() as client:
         walls = build_world(client, params)
         bodies = [create_object_body(client, model, position, quaternion, mass=0.0).body_id
@@ -391,7 +391,7 @@ def test_contacts_in_the_reused_world_equal_a_fresh_world() -> None:
 
 
 def _contacts_in_a_new_world(scene: dict, models: dict) -> tuple[int, int, int]:
-    """:func:`scene_contacts` as before issue #22: the scene loaded anew with a floor, in a new client."""
+    """:func:`scene_contacts` the direct way: the scene loaded anew with a floor, in a new client."""
     with physics_client() as client:
         floor = pybullet.createMultiBody(0, pybullet.createCollisionShape(pybullet.GEOM_PLANE, physicsClientId=client),
                                          physicsClientId=client)

@@ -310,7 +310,7 @@ def test_a_shard_another_process_is_building_is_passed_over_then_waited_for(tmp_
     assert report.built == len(shards) and report.ok
 
 
-# -- caches and leftovers that cannot lie (issue #14) ---------------------------
+# -- caches and leftovers that cannot lie ---------------------------
 
 
 def test_a_shard_copied_over_another_is_caught_by_the_key_it_holds(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""The robot experiment in simulation (issue #18): real piles, renders and pybullet grasps, no mocks.
+"""The robot experiment in simulation: real piles, renders and pybullet grasps, no mocks.
 
 The world is the committed golden pipeline (``data/golden``: one procedural
 tool per category, their grasps and checks); the piles are fresh ones from
