@@ -1,4 +1,4 @@
-"""Automatic parts and true length for users' meshes (issue #16): osgd/models/parts.py and the models stage."""
+"""Automatic parts and true length for users' meshes: osgd/models/parts.py and the models stage."""
 
 from __future__ import annotations
 
@@ -207,3 +207,22 @@ def test_a_user_mesh_whose_parts_cannot_be_found_gets_a_note_and_is_counted(tmp_
     assert "automatic parts" in note and "no task" in note and "[[parts]]" in note
     assert json.loads(rows["brick"]["provenance"])["parts"]["method"] == "none"
     assert "1 models without task labels" in summary and "user/brick" in summary
+
+
+def test_a_pliers_seen_edge_on_gets_its_arms():
+    """Thick arms (their side walls outweigh their faces) make the principal frame see the pliers from its edge:
+    the arms' gap lies along the thickness. The turned cross-section still shows the two arms."""
+    tool = _tool("pliers")
+    thick = tool.mesh.copy()
+    thick.apply_scale([1.0, 1.0, 2.0])  # arms twice as thick, across z
+    edge_on = thick.copy()
+    edge_on.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1.0, 0.0, 0.0]))  # thin axis: width
+    mesh = _tilted(edge_on, seed=3)
+    frame = principal_frame(mesh)
+    assert frame.extents[1] < frame.extents[2]  # the principal frame's width is the pliers' thickness
+    found = find_parts(mesh, "pliers")
+    assert found.found and found.confidence >= 0.5
+    assert _agreement(mesh, tool.face_parts, found.face_parts) >= AGREEMENT
+    handle = mesh.triangles_center[tool.face_parts == PART_INDEX["handle"]].mean(axis=0)
+    jaws = mesh.triangles_center[tool.face_parts == PART_INDEX["jaws"]].mean(axis=0)
+    assert (jaws - handle) @ found.axis > 0

@@ -21,6 +21,11 @@ model whose sidecar gives no ``[[parts]]`` regions), the parts of
    clearly the profile shows it (the *confidence*, in [0, 1]). Each face
    takes the part of the column its centroid lies in; toothbrush bristles
    are the faces beyond the head's plate.
+4. **The other cross-section** (:func:`find_parts`): where the principal
+   frame's profiles do not show the parts, the rule reads those of the frame
+   turned a quarter about *t* (width and thickness swapped: a pliers whose
+   thick arms made its frame see it edge-on), with its confidence lowered by
+   :func:`turned_confidence`.
 
 A model whose profile does not show its category's parts (confidence below
 :data:`MIN_CONFIDENCE`, say a plain box called a hammer) gets no labels and a
@@ -52,7 +57,7 @@ COLUMNS: Final[int] = 400
 #: Below this confidence the parts count as not found (no labels, a note).
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
-VERSION: Final[int] = 2
+VERSION: Final[int] = 3
 
 
 # -- the principal frame ---------------------------------------------------------------------------
@@ -90,6 +95,12 @@ class PrincipalFrame:
     def flipped(self) -> PrincipalFrame:
         """The same axes with *t* and *u* reversed (still right-handed)."""
         return replace(self, axes=self.axes * np.array([[-1.0], [-1.0], [1.0]]))
+
+    def turned(self) -> PrincipalFrame:
+        """The frame turned a quarter about *t*: width and thickness swapped (*u* is the old *v*, *v* the old
+        -*u*; still right-handed), so that the profiles see the tool from its edge."""
+        axes = np.array([self.axes[0], self.axes[2], -self.axes[1]])
+        return replace(self, axes=axes, extents=self.extents[[0, 2, 1]])
 
 
 def _thickness_axis(mesh: trimesh.Trimesh, axis: np.ndarray) -> np.ndarray:
@@ -713,6 +724,16 @@ def _face_parts(segmentation: Segmentation) -> np.ndarray:
     return parts
 
 
+def turned_confidence(turned: float, principal: float) -> float:
+    """The confidence of the turned frame's reading, used where the principal frame's does not find the parts.
+
+    ``turned * (1 - principal / MIN_CONFIDENCE) ** 0.5``: both in [0, 1], ``principal`` below
+    :data:`MIN_CONFIDENCE`. A principal reading that sees nothing (0, a pliers seen edge-on) takes nothing
+    away; one that almost finds other parts lowers the turned reading towards zero.
+    """
+    return float(turned * np.sqrt(max(0.0, 1.0 - principal / MIN_CONFIDENCE)))
+
+
 def find_parts(mesh: trimesh.Trimesh, category: str) -> AutomaticParts:
     """The part of every face of a tool mesh, found from its geometry (module text).
 
@@ -735,8 +756,14 @@ def find_parts(mesh: trimesh.Trimesh, category: str) -> AutomaticParts:
     """
     if category not in SEGMENTERS:
         raise ValueError(f"unknown category {category!r}; expected one of {list(CATEGORIES)}")
-    segmentation = SEGMENTERS[category](profiles(mesh))
+    frame = principal_frame(mesh)
+    segmentation = SEGMENTERS[category](profiles(mesh, frame))
     confidence = round(float(segmentation.confidence), 3)
+    if confidence < MIN_CONFIDENCE:
+        turned = SEGMENTERS[category](profiles(mesh, frame.turned()))
+        if round(turned_confidence(float(turned.confidence), confidence), 3) >= MIN_CONFIDENCE:
+            segmentation = turned
+            confidence = round(turned_confidence(float(turned.confidence), confidence), 3)
     frame = segmentation.profiles.frame
     if confidence < MIN_CONFIDENCE:
         unknown = np.full(len(mesh.faces), UNKNOWN_PART, dtype=np.int8)

@@ -21,7 +21,9 @@ the faces its sidecar's regions leave unclaimed get automatic parts
 ``provenance["parts"]``.
 
 A model whose mesh is unusable (empty, flat, far off scale...) gives a note
-and an empty shard; a file that cannot be read (an OBJ trimesh cannot parse)
+and an empty shard; a user's mesh that is damaged or degenerate (repair
+would drop more than ``max_repair_loss`` of its faces, no usable face, flat,
+no volume) fails its item, naming the mesh file and the cause; a file that cannot be read (an OBJ trimesh cannot parse)
 or a mistake in what a person wrote (a missing or invalid sidecar, a
 malformed annotation file, a folder name that names no category, a source
 file changed since planning) fails its item with an
@@ -55,7 +57,7 @@ from osgd.models import decomposition, osgd_import, parts, procedural, user
 from osgd.models.categories import category_properties, draw_length
 from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
 from osgd.models.osgd_import import AnnotatedPair
-from osgd.models.validation import ModelRejected, check_length, check_mesh
+from osgd.models.validation import DamagedMesh, ModelRejected, check_length, check_mesh
 from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_notes
 from osgd.store import ShardStore
 
@@ -82,6 +84,14 @@ class ModelsStageParams(StageParams):
         default=None,
         json_schema_extra={"location": True},
         description="Folder of users' meshes, each with a <stem>.toml sidecar; empty: none.",
+    )
+    max_repair_loss: float = Field(
+        default=0.05,
+        ge=0.0,
+        le=1.0,
+        json_schema_extra={"omit_default": True},
+        description="Largest share of a user's mesh's faces that repair may drop (faces on non-finite vertices, "
+        "zero-area faces), in [0, 1]; a mesh that would lose more fails its item. Default 0.05 (5 %).",
     )
     decomposition: Literal["auto", "fast", "thin", "fine", "hull", "scan"] = Field(
         default="auto",
@@ -208,7 +218,7 @@ class ModelsStage(Stage):
         if "osgd" in params.sources and params.osgd_dir:
             items += self._plan_osgd(Path(params.osgd_dir), common)
         if "user" in params.sources and params.user_dir:
-            items += self._plan_user(Path(params.user_dir), common)
+            items += self._plan_user(Path(params.user_dir), common, params.max_repair_loss)
         return items
 
     @staticmethod
@@ -228,7 +238,7 @@ class ModelsStage(Stage):
         return items
 
     @staticmethod
-    def _plan_user(base: Path, common: Mapping[str, Any]) -> list[WorkItem]:
+    def _plan_user(base: Path, common: Mapping[str, Any], max_repair_loss: float) -> list[WorkItem]:
         """One item per mesh file; a mesh whose files cannot be read is an item that fails, naming them."""
         items: list[WorkItem] = []
         for mesh_path in user.list_user_meshes(base):
@@ -241,7 +251,8 @@ class ModelsStage(Stage):
                 payload["unreadable"] = problems
             else:
                 payload.update({"files": _hashes(files, base), "automatic_parts": parts.VERSION,
-                                "scan_repair": decomposition.SCAN_REPAIR_VERSION})
+                                "scan_repair": decomposition.SCAN_REPAIR_VERSION,
+                                "max_repair_loss": max_repair_loss})
             items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
         return items
 
@@ -313,6 +324,10 @@ class ModelsStage(Stage):
         try:
             model = self._read_source(item)
             row, notes, warnings = self._finish(model, item, store)
+        except DamagedMesh as error:
+            if item.payload["source"] != "user":
+                return BuildResult(empty_table("models"), [f"skipped: {error}"])
+            raise InputError(Path(getattr(item, "source_path", "")) / item.payload["mesh"], error.cause) from error
         except ModelRejected as error:
             return BuildResult(empty_table("models"), [f"skipped: {error}"])
         return BuildResult(pa.Table.from_pylist([row], schema=MODELS), notes, warnings)
@@ -321,7 +336,8 @@ class ModelsStage(Stage):
         self, model: _SourceModel, item: WorkItem, store: ShardStore
     ) -> tuple[dict[str, Any], list[str], list[str]]:
         """The row, its notes (kept, also in the provenance) and this build's warnings (a bad cache file)."""
-        checked = check_mesh(model.mesh, model.face_parts, name=item.item_id)
+        max_loss = item.payload.get("max_repair_loss") if model.user_mesh else None
+        checked = check_mesh(model.mesh, model.face_parts, name=item.item_id, max_loss=max_loss)
         notes = [*model.notes, *checked.notes]
         mesh = checked.mesh
         measure = parts.true_length if model.user_mesh else _axis_aligned_length
@@ -346,6 +362,8 @@ class ModelsStage(Stage):
             mass = compound_mass_properties(
                 [trimesh.Trimesh(v, f, process=False) for v, f in compound.parts], properties.density
             )
+        if not mass.volume > 0:
+            raise DamagedMesh(item.item_id, f"degenerate mesh: no volume ({mass.source}: {mass.volume:.3g} m^3)")
         density = properties.density
         estimated_mass = mass.mass
         mass, clamped = clamp_mass(mass, properties.mass_range)

@@ -9,6 +9,8 @@ no faces            nothing can be repaired                                rejec
 non-finite vertex   faces using it are dropped                             note
 duplicate vertices  merged                                                 silent
 degenerate faces    zero-area and duplicate faces are dropped              note
+damaged             more than ``max_loss`` of the faces dropped above      rejected
+                    (non-finite or zero-area; when ``max_loss`` is given)
 flat / zero size    the mesh has (almost) no extent along some axis        rejected
 several bodies      bodies whose boxes touch form one object; the largest  note
                     object (by area) is kept, the others dropped
@@ -19,7 +21,9 @@ far off scale       real length outside the category's plausible range     rejec
 ==================  =====================================================  ==========
 
 A rejected model raises :class:`ModelRejected`; the models stage turns it into
-a note and an empty shard, so one bad file never stops a run.
+a note and an empty shard, so one bad file never stops a run. A damaged or
+degenerate mesh raises its subclass :class:`DamagedMesh`, which the models
+stage turns into a failed item for a user's mesh (the file needs fixing).
 """
 
 from __future__ import annotations
@@ -45,6 +49,25 @@ FLAT_RATIO = 1e-4
 
 class ModelRejected(ValueError):
     """A mesh that cannot be made usable; the message says why."""
+
+
+class DamagedMesh(ModelRejected):
+    """A mesh damaged beyond repair or degenerate (no usable face left, flat, too many faces lost to repair).
+
+    Parameters
+    ----------
+    name : str
+        The file or item named in the message.
+    cause : str
+        What is wrong, without the name.
+    """
+
+    def __init__(self, name: str, cause: str) -> None:
+        super().__init__(f"{name}: {cause}")
+        self.cause = cause
+
+    def __reduce__(self) -> tuple[type[DamagedMesh], tuple[str, str]]:
+        return type(self), (str(self).removesuffix(f": {self.cause}"), self.cause)
 
 
 @dataclass
@@ -111,7 +134,13 @@ def _object_groups(mesh: trimesh.Trimesh) -> list[np.ndarray]:
     return [np.sort(np.concatenate(parts)) for _, parts in sorted(groups.items())]
 
 
-def check_mesh(mesh: trimesh.Trimesh, face_parts: np.ndarray | None = None, *, name: str = "mesh") -> CheckedMesh:
+def check_mesh(
+    mesh: trimesh.Trimesh,
+    face_parts: np.ndarray | None = None,
+    *,
+    name: str = "mesh",
+    max_loss: float | None = None,
+) -> CheckedMesh:
     """Validate a mesh and apply the safe repairs of the module table.
 
     Parameters
@@ -122,6 +151,9 @@ def check_mesh(mesh: trimesh.Trimesh, face_parts: np.ndarray | None = None, *, n
         Part index per face; unknown (-1) when omitted.
     name : str
         Named in messages (a file path or item id).
+    max_loss : float, optional
+        In [0, 1]: the largest share of the faces that repair may drop (faces on non-finite vertices and
+        zero-area faces; duplicates, which lose nothing, are not counted). Default None: no limit.
 
     Returns
     -------
@@ -129,8 +161,10 @@ def check_mesh(mesh: trimesh.Trimesh, face_parts: np.ndarray | None = None, *, n
 
     Raises
     ------
+    DamagedMesh
+        When no usable face is left, the mesh is flat, or repair dropped more than ``max_loss`` of its faces.
     ModelRejected
-        When no usable mesh is left.
+        For the other problems of the module table.
     """
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
@@ -143,8 +177,18 @@ def check_mesh(mesh: trimesh.Trimesh, face_parts: np.ndarray | None = None, *, n
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ModelRejected(f"{name}: faces index vertices that do not exist")
 
+    count = len(faces)
     vertices, faces, parts = _drop_non_finite(vertices, faces, parts, notes, name)
-    work, parts = _drop_degenerate(trimesh.Trimesh(vertices, faces, process=False), parts, notes, name)
+    non_finite = count - len(faces)
+    work, parts, degenerate = _drop_degenerate(trimesh.Trimesh(vertices, faces, process=False), parts, notes, name)
+    lost = non_finite + degenerate
+    if max_loss is not None and lost > max_loss * count:
+        raise DamagedMesh(
+            name, f"damaged mesh: repair would drop {lost} of its {count} faces ({lost / count:.1%}: {non_finite} "
+            f"on non-finite vertices, {degenerate} of zero area), more than max_repair_loss = {max_loss:.1%}; "
+            "repair the mesh, or raise [models] max_repair_loss",
+        )
+    _check_not_flat(work, name)
     work, parts = _keep_largest_object(work, parts, notes)
     parts = _close_and_orient(work, parts, notes)
     is_closed = bool(work.is_watertight and work.is_winding_consistent and work.volume > 0)
@@ -171,7 +215,7 @@ def _drop_non_finite(
 
     Raises
     ------
-    ModelRejected
+    DamagedMesh
         When every face uses a non-finite vertex.
     """
     finite_vertex = np.isfinite(vertices).all(axis=1)
@@ -181,14 +225,14 @@ def _drop_non_finite(
     notes.append(f"dropped {int((~keep).sum())} faces using {int((~finite_vertex).sum())} non-finite vertices")
     faces, parts = faces[keep], parts[keep]
     if len(faces) == 0:
-        raise ModelRejected(f"{name}: every face uses a non-finite vertex")
+        raise DamagedMesh(name, f"damaged mesh: every one of its {len(keep)} faces uses a non-finite vertex")
     return np.where(finite_vertex[:, None], vertices, 0.0), faces, parts
 
 
 def _drop_degenerate(
     work: trimesh.Trimesh, parts: np.ndarray, notes: list[str], name: str
-) -> tuple[trimesh.Trimesh, np.ndarray]:
-    """Merge duplicate vertices, drop degenerate and duplicate faces; reject what is empty or flat.
+) -> tuple[trimesh.Trimesh, np.ndarray, int]:
+    """Merge duplicate vertices, drop degenerate and duplicate faces; reject what is left without a face.
 
     Parameters
     ----------
@@ -201,15 +245,16 @@ def _drop_degenerate(
 
     Returns
     -------
-    mesh, parts (F',)
+    mesh, parts (F',), and how many of the dropped faces had zero area (duplicates not counted)
 
     Raises
     ------
-    ModelRejected
-        When every face is degenerate or the mesh is flat.
+    DamagedMesh
+        When every face is degenerate.
     """
     work.merge_vertices()
     keep = work.nondegenerate_faces(height=1e-12 * float(work.extents.max() or 1.0))
+    degenerate = int((~keep).sum())
     unique = np.zeros(len(work.faces), dtype=bool)
     unique[work.unique_faces()] = True
     keep &= unique
@@ -217,11 +262,23 @@ def _drop_degenerate(
         notes.append(f"dropped {int((~keep).sum())} degenerate or duplicate faces")
         work, parts = _keep_faces(work, parts, keep)
     if len(work.faces) == 0:
-        raise ModelRejected(f"{name}: every face is degenerate")
+        raise DamagedMesh(name, "degenerate mesh: every face is degenerate (zero area)")
+    return work, parts, degenerate
+
+
+def _check_not_flat(work: trimesh.Trimesh, name: str) -> None:
+    """Reject a mesh with (almost) no extent along some axis: no volume (a single triangle, a plane).
+
+    Raises
+    ------
+    DamagedMesh
+    """
     extents = work.extents
     if float(extents.min()) <= FLAT_RATIO * float(extents.max()):
-        raise ModelRejected(f"{name}: degenerate mesh, flat (extents {np.round(extents, 6).tolist()})")
-    return work, parts
+        raise DamagedMesh(
+            name, f"degenerate mesh: flat, no volume ({len(work.faces)} faces, extents "
+            f"{np.round(extents, 6).tolist()})"
+        )
 
 
 def _keep_largest_object(
