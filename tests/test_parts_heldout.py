@@ -57,7 +57,8 @@ def test_an_affine_case_moves_points_with_the_mesh(variant):
     assert change.mesh.is_watertight and change.mesh.volume > 0  # winding kept the right way out
 
 
-@pytest.mark.parametrize("variant", ["remeshed", "decimated", "noise", "holes", "scan"])
+@pytest.mark.parametrize("variant", [pytest.param("remeshed", marks=pytest.mark.slow), "decimated", "noise", "holes",
+                                     pytest.param("scan", marks=pytest.mark.slow)])
 def test_resampled_cases_keep_the_shape_and_each_face_knows_where_it_came_from(variant):
     tool = _tool()
     rng = parts_stress.case_rng("hammer", variant)
