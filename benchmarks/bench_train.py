@@ -91,13 +91,11 @@ def configurations() -> dict[str, dict]:
     """Name -> {"model_options", "batch_size", "image_size", "jitter_up", "jitter_down", "optimizer", "lr",
     "torchvision_roi_align", "cpu_bf16"}."""
     from togcrf.config import CPU  # noqa: PLC0415
-    from togcrf.model import options_dict  # noqa: PLC0415
+    from togcrf.model.options import dotted_options  # noqa: PLC0415
 
-    options = {f"{group}.{name}": value for group, values in options_dict(CPU.model_options).items()
-               for name, value in values.items()}
-    recipe = {"model_options": options, "batch_size": CPU.batch_size, "image_size": CPU.image_size,
-              "jitter_up": 0.0, "jitter_down": CPU.scale_jitter, "optimizer": CPU.optimizer, "lr": CPU.lr,
-              "torchvision_roi_align": False, "cpu_bf16": CPU.cpu_bf16}
+    recipe = {"model_options": dotted_options(CPU.model_options), "batch_size": CPU.batch_size,
+              "image_size": CPU.image_size, "jitter_up": 0.0, "jitter_down": CPU.scale_jitter,
+              "optimizer": CPU.optimizer, "lr": CPU.lr, "torchvision_roi_align": False, "cpu_bf16": CPU.cpu_bf16}
     whole_backbone = {**recipe, "image_size": 192, "cpu_bf16": False, "model_options": {
         **recipe["model_options"], "backbone.fpn_max_stride": 32, "rpn.anchor_sizes": (16, 32, 64, 128),
         "grasp_head.anchor_size": 12.0, "grasp_head.rois_per_image": 16}}

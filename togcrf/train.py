@@ -70,6 +70,7 @@ from togcrf.engine import (
 )
 from togcrf.losses import LOSS_KEYS
 from togcrf.model import build_model, options_dict, stored_options
+from togcrf.model.options import dotted_options
 
 logger = logging.getLogger(__name__)
 
@@ -531,9 +532,8 @@ def options_command(
     The groups and their meaning, units and sources: ``togcrf.model.options`` and docs/togcrf.md.
     """
     config = TrainConfig() if preset_name is None else preset(preset_name, torch.cuda.is_available())
-    for group, values in options_dict(config.model_options).items():
-        for name, value in values.items():
-            typer.echo(f"{group}.{name}={json.dumps(value, separators=(',', ':'))}")
+    for name, value in dotted_options(config.model_options).items():
+        typer.echo(f"{name}={json.dumps(value, separators=(',', ':'))}")
 
 
 def register(app: typer.Typer) -> None:

@@ -135,6 +135,14 @@ def blender_to_obj(points: np.ndarray) -> np.ndarray:
     return np.column_stack([points[:, 0], points[:, 2], -points[:, 1]])
 
 
+def _existing_models_dir(models_dir: Path) -> Path:
+    """``models_dir`` as a path; an InputError if it is no folder."""
+    models_dir = Path(models_dir)
+    if not models_dir.is_dir():
+        raise InputError(models_dir, "no such folder; set [models] osgd_dir to a folder in the OSGD layout")
+    return models_dir
+
+
 def list_model_folders(models_dir: Path) -> list[Path]:
     """Model folders of an OSGD models dir (those holding ``model/model_normalized.obj``), sorted by name.
 
@@ -143,9 +151,7 @@ def list_model_folders(models_dir: Path) -> list[Path]:
     InputError
         If the folder does not exist.
     """
-    models_dir = Path(models_dir)
-    if not models_dir.is_dir():
-        raise InputError(models_dir, "no such folder; set [models] osgd_dir to a folder in the OSGD layout")
+    models_dir = _existing_models_dir(models_dir)
     return sorted(path for path in models_dir.iterdir() if (path / MESH_PATH).is_file())
 
 
@@ -162,9 +168,7 @@ def unreadable_model_folders(models_dir: Path) -> dict[Path, tuple[str, str]]:
     InputError
         If the folder does not exist.
     """
-    models_dir = Path(models_dir)
-    if not models_dir.is_dir():
-        raise InputError(models_dir, "no such folder; set [models] osgd_dir to a folder in the OSGD layout")
+    models_dir = _existing_models_dir(models_dir)
     problems: dict[Path, tuple[str, str]] = {}
     for entry in sorted(models_dir.iterdir()):
         if not entry.exists():

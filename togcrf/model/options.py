@@ -269,9 +269,14 @@ def _checked(name: str, value: Any, kind: Any) -> Any:
     return float(value) if kind is float else tuple(value) if isinstance(value, list) else value
 
 
+def dotted_options(options: ModelOptions) -> dict[str, Any]:
+    """Options as dotted names with JSON values (``{"rpn.anchor_sizes": [16, 32, 64, 128, 256], ...}``)."""
+    return _dotted(options_dict(options))
+
+
 def with_options(options: ModelOptions, values: dict[str, Any]) -> ModelOptions:
     """``options`` with the dotted or nested ``values`` changed."""
-    merged = _dotted(options_dict(options)) | _dotted(values)
+    merged = dotted_options(options) | _dotted(values)
     return model_options(merged)
 
 
