@@ -388,15 +388,15 @@ def test_repair_closes_holes_and_merges_split_vertices():
         assert closed.volume == pytest.approx(0.1 * 0.05 * 0.02, rel=1e-9)  # the fans face outwards
 
 
-def _scanned_comb(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray]:
-    """An 18 cm comb (a fork's tines: 3 mm wide, 3 mm apart) as a scan: remeshed to 5 mm edges, noised by
+def _scanned_comb(rng: np.random.Generator, edge: float = 0.005) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """An 18 cm comb (a fork's tines: 3 mm wide, 3 mm apart) as a scan: remeshed to ``edge`` (m), noised by
     0.2 mm, 2 % of its faces gone; and a point in each gap between the tines."""
     from shapely.geometry import box  # noqa: PLC0415 - trimesh's extrusion needs shapely
     from shapely.ops import unary_union  # noqa: PLC0415
 
     outline = unary_union([box(0, 0, 0.12, 0.021)] + [box(0.11, 0.006 * i, 0.18, 0.006 * i + 0.003) for i in range(4)])
     solid = trimesh.creation.extrude_polygon(outline, 0.004)
-    vertices, faces = trimesh.remesh.subdivide_to_size(solid.vertices, solid.faces, max_edge=0.005, max_iter=20)
+    vertices, faces = trimesh.remesh.subdivide_to_size(solid.vertices, solid.faces, max_edge=edge, max_iter=20)
     vertices = vertices + rng.normal(0.0, 0.0002, vertices.shape)
     faces = faces[rng.random(len(faces)) > 0.02]
     gaps = np.array([[0.15, 0.006 * i + 0.0045, 0.002] for i in range(3)])
@@ -419,6 +419,40 @@ def test_scan_preset_repairs_a_scan_and_keeps_the_gaps_between_tines(tmp_path):
     assert decomposition.decompose(scan.vertices, scan.faces, "scan", tmp_path).cached
     # the preset procedural tools get fills every gap: one hull
     assert all(_covered(gap, decomposition.decompose(scan.vertices, scan.faces, "fast").parts) for gap in gaps)
+
+
+def test_scan_preset_simplifies_a_dense_scan_and_keeps_the_gaps_between_tines(tmp_path):
+    scan, gaps = _scanned_comb(np.random.default_rng(3), edge=0.0012)
+    assert len(scan.faces) > 4 * 2000
+    simple = decomposition.decompose(scan.vertices, scan.faces, "scan", tmp_path, scan_max_faces=2000)
+    simplified = json.loads(decomposition.description_json(simple.description))["repair"]["simplified"]
+    assert simplified["faces_before"] > 4 * 2000 and 1900 <= simplified["faces"] <= 2000
+    for max_faces in (0, len(scan.faces)):  # nothing to collapse
+        kept = decomposition.simplify_for_decomposition(scan.vertices, scan.faces, max_faces)
+        assert kept[0] is scan.vertices and kept[1] is scan.faces and kept[2] == {}
+    assert not any(_covered(gap, simple.parts) for gap in gaps) and not simple.notes
+    # the simplified compound still holds the comb: its back and each tine's middle
+    assert all(_covered(point, simple.parts) for point in ([0.06, 0.0105, 0.002], *[[0.15, 0.006 * i + 0.0015, 0.002]
+                                                                                   for i in range(4)]))
+    assert decomposition.decompose(scan.vertices, scan.faces, "scan", tmp_path, scan_max_faces=2000).cached
+
+
+def test_scan_max_faces_is_in_the_key_of_the_items_that_get_the_scan_preset(tmp_path):
+    (tmp_path / "fork.stl").write_bytes(trimesh.creation.box(extents=[0.2, 0.02, 0.01]).export(file_type="stl"))
+    (tmp_path / "fork.toml").write_text('category = "fork"\nlength = 0.2\n')
+    stage = ModelsStage()
+
+    def keys(**values):
+        params = stage.Params(sources=["procedural", "user"], procedural_per_category=1, user_dir=str(tmp_path),
+                              **values)
+        return {shard.item.item_id: shard.key for shard in stage.planned(params, 0, {})}
+
+    default, other = keys(), keys(scan_max_faces=3000)
+    assert default["user/fork"] != other["user/fork"]
+    assert all(default[item] == other[item] for item in default if item.startswith("procedural/"))
+    scan_everywhere, scan_other = keys(decomposition="scan"), keys(decomposition="scan", scan_max_faces=3000)
+    assert scan_everywhere["procedural/fork_00"] != scan_other["procedural/fork_00"]
+    assert keys(decomposition="fast")["user/fork"] == keys(decomposition="fast", scan_max_faces=3000)["user/fork"]
 
 
 # -- the stage -------------------------------------------------------------------------------

@@ -15,9 +15,11 @@ into one hull unless the threshold is at most 0.02):
 - ``hull``: no coacd, the convex hull of the whole mesh (quick tests).
 - ``scan``: for users' meshes (scans, CAD): the mesh is repaired first
   (:func:`repair_for_decomposition`: duplicate vertices merged, every hole
-  closed by a fan of triangles), then cut at threshold 0.02 without coacd's
-  remeshing when the repair made it watertight, and remeshed at cells of
-  :data:`SCAN_CELL` otherwise.
+  closed by a fan of triangles), simplified to at most ``[models]
+  scan_max_faces`` faces (:func:`simplify_for_decomposition`, quadric edge
+  collapse; :data:`SCAN_MAX_FACES` by default), then cut at
+  threshold 0.02 without coacd's remeshing when the repair made it
+  watertight, and remeshed at cells of :data:`SCAN_CELL` otherwise.
 - ``auto`` (the stage default) picks ``scan`` for users' meshes, ``thin``
   for the categories in :data:`THIN_CATEGORIES` and ``fast`` for the others.
 
@@ -28,7 +30,13 @@ watertight procedural meshes alone. Why scans need their own preset
 (measured by ``benchmarks/bench_decomposition.py``, docs/models.md): coacd's
 own test finds a noisy scan not manifold even when it is watertight, and its
 remesh at 50 cells along the longest side (4 mm on a 20 cm fork) merges the
-tines and fills a wrench's jaws.
+tines and fills a wrench's jaws. Why a scan is simplified first: coacd's time
+grows with the faces and the noise (a minute and more for 30,000-150,000
+faces); quadric edge collapse to a few thousand faces takes a fraction of a
+second, smooths the sensor noise away and leaves the hulls as close to the
+true solid or closer (``bench_decomposition.py``, docs/models.md). The
+collapse may leave a few edges shared by four faces; coacd cuts such a
+mesh without remeshing as it does a closed one.
 
 Cache: ``<cache_dir>/<key>.npz`` where ``key`` is the sha256 of the mesh's
 vertex and face bytes, the coacd version and *every* coacd parameter
@@ -99,8 +107,13 @@ PRESETS: Final[dict[str, CoacdParameters | None]] = {
 SCAN_CELL: Final[float] = 0.0015
 #: Bounds of that remesh's resolution (cells along the longest side): coacd's default, and a cost cap.
 SCAN_RESOLUTION: Final[tuple[int, int]] = (50, 200)
-#: Version of the ``scan`` preset's repair; in the payload of users' models, so a change rebuilds them.
-SCAN_REPAIR_VERSION: Final[int] = 1
+#: Version of the ``scan`` preset's repair and simplification; in the payload of users' models, so a change
+#: rebuilds them.
+SCAN_REPAIR_VERSION: Final[int] = 2
+#: Default largest face count of a scan given to coacd (``[models] scan_max_faces``).
+SCAN_MAX_FACES: Final[int] = 5000
+#: fast_simplification's aggressiveness (0 slow and close to the input, 10 fast and coarse; its default 7).
+SIMPLIFY_AGGRESSION: Final[int] = 3
 
 #: Categories whose thin parts need the ``thin`` preset under ``auto``.
 THIN_CATEGORIES: Final[frozenset[str]] = frozenset({"fork"})
@@ -208,6 +221,33 @@ def repair_for_decomposition(vertices: np.ndarray, faces: np.ndarray) -> Repaire
                     bool(result.is_watertight and result.is_winding_consistent))
 
 
+def simplify_for_decomposition(
+    vertices: np.ndarray, faces: np.ndarray, max_faces: int
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """At most ``max_faces`` faces of a repaired mesh, by quadric edge collapse (trimesh, fast_simplification).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    faces : (F, 3) int
+    max_faces : int
+        0: the mesh as it is.
+
+    Returns
+    -------
+    vertices, faces, description
+        The description (``{}`` when nothing was collapsed) holds the face
+        counts and the library's version, for the ``decomposition`` column.
+    """
+    if max_faces <= 0 or len(faces) <= max_faces:
+        return vertices, faces, {}
+    mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
+    simple = mesh.simplify_quadric_decimation(face_count=max_faces, aggression=SIMPLIFY_AGGRESSION)
+    description = {"faces_before": len(faces), "faces": len(simple.faces), "method": "quadric edge collapse",
+                   "library": f"fast_simplification {_version('fast_simplification')}"}
+    return np.asarray(simple.vertices, np.float64), np.asarray(simple.faces, np.int64), description
+
+
 def scan_parameters(repaired: Repaired) -> CoacdParameters:
     """The ``scan`` preset's coacd parameters for a repaired mesh.
 
@@ -224,11 +264,15 @@ def scan_parameters(repaired: Repaired) -> CoacdParameters:
     return dataclasses.replace(base, preprocess_mode="on", preprocess_resolution=resolution)
 
 
-def _coacd_version() -> str:
+def _version(package: str) -> str:
     try:
-        return metadata.version("coacd")
+        return metadata.version(package)
     except metadata.PackageNotFoundError:
         return "unknown"
+
+
+def _coacd_version() -> str:
+    return _version("coacd")
 
 
 def cache_key(vertices: np.ndarray, faces: np.ndarray, parameters: CoacdParameters | None) -> str:
@@ -350,6 +394,7 @@ def decompose(
     faces: np.ndarray,
     preset: str,
     cache_dir: Path | None = None,
+    scan_max_faces: int = SCAN_MAX_FACES,
 ) -> Decomposition:
     """The convex parts of a mesh, from the cache when present.
 
@@ -362,6 +407,9 @@ def decompose(
         A concrete preset name (see :func:`resolve_preset`).
     cache_dir : Path, optional
         Folder of cached results; no caching when None.
+    scan_max_faces : int
+        The ``scan`` preset: the most faces of the mesh given to coacd
+        (:func:`simplify_for_decomposition`); 0 keeps them all.
 
     Returns
     -------
@@ -375,9 +423,10 @@ def decompose(
     repair: dict[str, Any] = {}
     if preset == "scan":
         repaired = repair_for_decomposition(vertices, faces)
-        vertices, faces, parameters = repaired.vertices, repaired.faces, scan_parameters(repaired)
+        parameters = scan_parameters(repaired)
+        vertices, faces, simplified = simplify_for_decomposition(repaired.vertices, repaired.faces, scan_max_faces)
         repair = {"repair": {"holes_closed": repaired.holes_closed, "watertight": repaired.watertight,
-                             "version": SCAN_REPAIR_VERSION}}
+                             "version": SCAN_REPAIR_VERSION, **({"simplified": simplified} if simplified else {})}}
     description: dict[str, Any] = {
         "method": "convex_hull" if parameters is None else "coacd",
         "preset": preset,

@@ -55,6 +55,7 @@ from osgd.contract.taxonomy import CATEGORIES, UNKNOWN_PART
 from osgd.errors import InputError
 from osgd.models import decomposition, osgd_import, parts, procedural, user
 from osgd.models.categories import category_properties, draw_length
+from osgd.models.decomposition import SCAN_MAX_FACES
 from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
 from osgd.models.osgd_import import AnnotatedPair
 from osgd.models.validation import DamagedMesh, ModelRejected, check_length, check_mesh
@@ -97,6 +98,14 @@ class ModelsStageParams(StageParams):
         default="auto",
         description="Convex decomposition preset (osgd.models.decomposition); auto: scan for users' meshes, "
         "else per category.",
+    )
+    scan_max_faces: int = Field(
+        default=SCAN_MAX_FACES,
+        ge=0,
+        json_schema_extra={"omit_default": True},
+        description="The scan preset: a repaired mesh with more faces is simplified to this many (quadric edge "
+        "collapse) before coacd cuts it, which then takes seconds instead of minutes; 0: never simplified. "
+        "The collision shape only: the stored mesh, its parts and grasps keep every face.",
     )
 
 
@@ -208,7 +217,11 @@ class ModelsStage(Stage):
     # -- planning ---------------------------------------------------------------------
     def plan(self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]) -> list[WorkItem]:
         assert isinstance(params, ModelsStageParams)
-        common = {"seed": int(seed), "decomposition": params.decomposition}
+        common: dict[str, Any] = {"seed": int(seed), "decomposition": params.decomposition}
+        # The scan preset's simplification is in the key of exactly the items that get the preset.
+        scan = {"scan_max_faces": params.scan_max_faces}
+        if params.decomposition == "scan":
+            common.update(scan)
         items: list[WorkItem] = []
         if "procedural" in params.sources:
             for category in CATEGORIES:
@@ -218,7 +231,8 @@ class ModelsStage(Stage):
         if "osgd" in params.sources and params.osgd_dir:
             items += self._plan_osgd(Path(params.osgd_dir), common)
         if "user" in params.sources and params.user_dir:
-            items += self._plan_user(Path(params.user_dir), common, params.max_repair_loss)
+            user_common = {**common, **(scan if params.decomposition == "auto" else {})}
+            items += self._plan_user(Path(params.user_dir), user_common, params.max_repair_loss)
         return items
 
     @staticmethod
@@ -353,7 +367,8 @@ class ModelsStage(Stage):
 
         preset = decomposition.resolve_preset(item.payload["decomposition"], model.category, model.user_mesh)
         cache = store.local_folder("cache/decompositions")
-        compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, cache)
+        compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, cache,
+                                           item.payload.get("scan_max_faces", SCAN_MAX_FACES))
         notes += compound.notes
         properties = category_properties(model.category)
         if checked.is_closed:
