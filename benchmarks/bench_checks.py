@@ -1,131 +1,212 @@
-"""Benchmark of the checks stage: grasp trials per second, and the OSGD set.
+"""Benchmark of the checks stage: the trial of this tree against the trial of an earlier commit, in one run.
+
+The earlier trial is the ``osgd`` package of ``--before`` (a git ref;
+default: the last commit before the trials stopped early), extracted with
+``git archive`` into a temporary folder; each side runs in its own process
+with its own package first on ``sys.path``, one after the other, on one core.
 
 1. Trials per second on one core: the fixture tools (tests/helpers.py) with
-   grasps across their handles and bodies, run serially in this process,
-   first with the rigid pads (``pad_contact = "rigid"``, the baseline),
-   then with the soft pads (both criteria come from one trial), then with
-   the soft pads and the approach swept against the mesh
-   (``approach_geometry = "mesh"``, as ``pipelines/osgd.toml``), and the
-   ratios.
-2. The whole shared OSGD set (``../shared/osgd-models``, skipped when
-   absent): the models and grasps stages are run first (their shards are
-   kept under ``--data-dir`` and reused on the next run, and not timed), then
-   the checks stage is timed on every grasp (all annotated pairs with their
-   approach variants) with ``--workers`` processes. Prints trials per second
-   per core, the acceptance summary and the peak resident memory of this
-   process and of its worker processes.
+   grasps across their handles and bodies, both sides on the same grasps,
+   under the defaults (approach against the hulls) and with the approach
+   against the mesh (``approach_geometry = "mesh"``, as
+   ``pipelines/osgd.toml``); the ratio of each.
+2. Unless ``--quick``: the fidelity of the two on the shared OSGD set
+   (``../shared/osgd-models``, skipped when absent), with the settings of
+   ``pipelines/osgd.toml``. The models and grasps stages are run first (their
+   shards are kept under ``--data-dir`` and reused, and not timed); then
+   every grasp of every ``--every``-th model is tried as annotated and made
+   wrong three ways (:mod:`osgd.checks.validate`) by both sides. Prints each
+   side's trials per second, the share of the annotated grasps that hold
+   ``lift`` and ``shake``, the share of each kind of wrong grasp that fails,
+   per category and over all, and the per-grasp agreement of ``stable``,
+   ``lift_stable`` and ``shake_stable`` between the sides.
 
 Usage::
 
-    python benchmarks/bench_checks.py [--workers 2] [--data-dir DIR] [--quick]
+    python benchmarks/bench_checks.py [--quick] [--before REF] [--trials 150] [--every 1] [--data-dir DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import resource
+import json
+import pickle
+import subprocess
 import sys
 import tempfile
 import time
+from collections import defaultdict
 from pathlib import Path
-
-import numpy as np
-from scipy.spatial.transform import Rotation
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
 
-from helpers import OSGD_MODELS, fixture_models  # noqa: E402
+#: The last commit whose trial ran every phase to its full length.
+BEFORE = "8c21d9ec30808d4786389c41d8e86de33105bd33"
 
-from osgd.checks.params import ChecksStageParams  # noqa: E402
-from osgd.checks.trial import approach_surface, run_trial  # noqa: E402
-from osgd.gripper import PANDA  # noqa: E402
+#: The ``[checks]`` settings of ``pipelines/osgd.toml``.
+OSGD_SETTINGS = {"max_mass_ratio": 10, "approach_geometry": "mesh"}
 
-
-def peak_memory_mib() -> tuple[float, float]:
-    """Peak resident memory of this process and of its largest child, MiB (Linux: ru_maxrss in KiB)."""
-    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-            resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
+WRONG = ("off_centre", "turned", "narrow")
 
 
-def bench_fixture_trials(count: int, params: ChecksStageParams, label: str) -> float:
-    """Time ``count`` trials on one core; returns trials per second."""
+# -- one side, in its own process ----------------------------------------------
+
+def side_fixture(count: int, settings: dict[str, Any]) -> dict[str, Any]:
+    """Time ``count`` fixture trials on one core (the package first on sys.path)."""
+    import numpy as np  # noqa: PLC0415
+    from helpers import fixture_models  # noqa: PLC0415
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415
+
+    from osgd.checks.params import ChecksStageParams  # noqa: PLC0415
+    from osgd.checks.trial import approach_surface, run_trial  # noqa: PLC0415
+    from osgd.gripper import PANDA  # noqa: PLC0415
+
+    params = ChecksStageParams(**settings)
     models = fixture_models()
     # Closing across each tool's thickness, approach from above, centres along the tool.
     quaternion = Rotation.from_matrix(np.column_stack([[0, 1, 0], [1, 0, 0], [0, 0, -1]])).as_quat()
-    rng = np.random.default_rng(0)
-    # As the stage does: each model's surface sampled once for the mesh approach (timed).
-    start = time.perf_counter()
-    surfaces = [approach_surface(model, params) for model in models]
-    sampling = time.perf_counter() - start
-    run_trial(models[2], np.zeros(3), quaternion, 0.05, params, PANDA, rng)  # warm-up: imports, client
-    outcomes: dict[str, int] = {}
+    run_trial(models[2], np.zeros(3), quaternion, 0.05, params, PANDA, np.random.default_rng(0))  # warm-up
+    offsets = np.random.default_rng(0).uniform(-0.1, 0.1, count)
+    outcomes: dict[str, int] = defaultdict(int)
     steps = 0
     start = time.perf_counter()
+    # As the stage does: each model's surface sampled once for the mesh approach (timed).
+    surfaces = [approach_surface(model, params) for model in models]
     for index in range(count):
-        model = models[index % len(models)]
-        x = rng.uniform(-0.1, 0.1)
-        result = run_trial(model, np.array([x, 0.0, 0.0]), quaternion, 0.05, params, PANDA, rng,
-                           surface=surfaces[index % len(models)])
-        outcomes[result.fail_reason or "stable"] = outcomes.get(result.fail_reason or "stable", 0) + 1
+        result = run_trial(models[index % len(models)], np.array([offsets[index], 0.0, 0.0]), quaternion, 0.05,
+                           params, PANDA, np.random.default_rng(index), surface=surfaces[index % len(models)])
+        outcomes[result.fail_reason or "stable"] += 1
         steps += result.sim_steps
-    elapsed = time.perf_counter() - start + sampling
-    print(f"fixture tools, {label}: {count} trials in {elapsed:.2f} s on one core: {count / elapsed:.1f} trials/s, "
-          f"{1000 * elapsed / count:.1f} ms/trial, {steps / count:.0f} steps/trial, "
-          f"{1e6 * elapsed / max(steps, 1):.0f} us/step (all costs included); outcomes {outcomes}")
-    return count / elapsed
+    return {"seconds": time.perf_counter() - start, "trials": count, "steps": steps, "outcomes": dict(outcomes)}
 
 
-def bench_osgd_set(data_dir: Path, workers: int) -> None:
-    from osgd.config import build_config  # noqa: PLC0415
-    from osgd.executor import make_executor  # noqa: PLC0415
-    from osgd.pipeline import run_stages, stage_by_name, stage_params_classes  # noqa: PLC0415
-    from osgd.store import ShardStore  # noqa: PLC0415
+def side_osgd(jobs_path: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    """Every variant of every grasp of the pickled jobs, serially (the package first on sys.path)."""
+    from osgd.checks import validate  # noqa: PLC0415
+    from osgd.checks.params import ChecksStageParams  # noqa: PLC0415
 
-    config = build_config(
-        {"pipeline": {"name": "bench-checks", "seed": 0},
-         "models": {"sources": ["osgd"], "osgd_dir": str(OSGD_MODELS)}},
-        stage_params_classes(),
-    )
-    store = ShardStore(data_dir)
-    executor = make_executor(workers)
+    jobs = pickle.loads(jobs_path.read_bytes())
+    params = ChecksStageParams(**settings).key_dict()
+    rows: list[dict[str, Any]] = []
     start = time.perf_counter()
-    for report in run_stages(config, store, executor, ["models", "grasps"]):
-        if not report.ok:
-            raise SystemExit(f"{report.stage} failed: {[failure.error for failure in report.failures]}")
-    print(f"OSGD set: models and grasps ready in {time.perf_counter() - start:.0f} s (not timed below)")
-    start = time.perf_counter()
-    (report,) = run_stages(config, store, executor, ["checks"], force=True)
-    elapsed = time.perf_counter() - start
-    if not report.ok:
-        raise SystemExit(f"checks failed: {[failure.error for failure in report.failures]}")
-    trials = sum(record.rows for record in report.records)
-    print(f"OSGD set: {trials} trials of {len(report.records)} models in {elapsed:.0f} s with {workers} workers: "
-          f"{trials / elapsed:.1f} trials/s, {trials / elapsed / workers:.1f} trials/s per core")
-    print(stage_by_name("checks").summary(store, report.records))
+    for done, job in enumerate(jobs, start=1):
+        rows += validate._model_trials({**job, "params": params})
+        print(f"\r{done}/{len(jobs)} models, {len(rows)} trials, {time.perf_counter() - start:.0f} s",
+              end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+    return {"seconds": time.perf_counter() - start, "rows": rows}
+
+
+def run_side(code: Path, task: str, argument: str, settings: dict[str, Any]) -> dict[str, Any]:
+    """Run one side's ``task`` in a fresh process whose ``osgd`` is the package under ``code``."""
+    with tempfile.NamedTemporaryFile(suffix=".json") as out:
+        subprocess.run([sys.executable, __file__, "--side", str(code), task, argument, json.dumps(settings),
+                        out.name], check=True)
+        return json.loads(Path(out.name).read_text())
+
+
+# -- the comparison -----------------------------------------------------------
+
+def bench_fixture(before: Path, count: int) -> None:
+    print("| fixture tools, one core | before trials/s | after trials/s | ratio | steps/trial before, after |")
+    print("|---|---:|---:|---:|---|")
+    for label, settings in (("defaults (approach against the hulls)", {}),
+                            ("approach against the mesh", {"approach_geometry": "mesh"})):
+        old, new = (run_side(code, "fixture", str(count), settings) for code in (before, ROOT))
+        old_rate, new_rate = old["trials"] / old["seconds"], new["trials"] / new["seconds"]
+        print(f"| {label} | {old_rate:.1f} | {new_rate:.1f} | **{new_rate / old_rate:.2f}x** | "
+              f"{old['steps'] / old['trials']:.0f}, {new['steps'] / new['trials']:.0f} |", flush=True)
+        if old["outcomes"] != new["outcomes"]:
+            print(f"  outcomes before {old['outcomes']}, after {new['outcomes']}")
+
+
+def fidelity_table(old_rows: list[dict], new_rows: list[dict]) -> str:
+    """Markdown: per category, both sides' annotated pass rates and wrong fail rates, and the agreement."""
+    old_by = {(row["model"], row["grasp_id"], row["variant"]): row for row in old_rows}
+    groups: dict[str, list[tuple[dict, dict]]] = defaultdict(list)
+    for row in new_rows:
+        pair = (old_by[(row["model"], row["grasp_id"], row["variant"])], row)
+        groups[row["category"]].append(pair)
+        groups["all"].append(pair)
+
+    def share(pairs: list[tuple[dict, dict]], side: int, variant: str, key: str, value: bool) -> str:
+        chosen = [pair[side][key] == value for pair in pairs if pair[side]["variant"] == variant]
+        return f"{100 * sum(chosen) / max(len(chosen), 1):.1f}"
+
+    lines = ["| category | grasps | annotated lift, before / after | annotated shake | "
+             + " | ".join(f"{variant}: fail" for variant in WRONG)
+             + " | agreement stable / lift / shake, annotated | agreement, all trials |",
+             "|---|---:|---:|---:|" + "---:|" * len(WRONG) + "---:|---:|"]
+    for group in [*sorted(group for group in groups if group != "all"), "all"]:
+        pairs = groups[group]
+        annotated = [pair for pair in pairs if pair[0]["variant"] == "annotated"]
+        cells = [f"{share(pairs, 0, 'annotated', key, True)} / {share(pairs, 1, 'annotated', key, True)} %"
+                 for key in ("lift", "shake")]
+        cells += [f"{share(pairs, 0, variant, 'lift', False)} / {share(pairs, 1, variant, 'lift', False)} %"
+                  for variant in WRONG]
+
+        def agree(chosen: list[tuple[dict, dict]], key: str) -> str:
+            return f"{100 * sum(old[key] == new[key] for old, new in chosen) / max(len(chosen), 1):.1f}"
+
+        # stable is lift_stable under the default criterion, which both sides run.
+        cells.append(" / ".join(agree(annotated, key) for key in ("lift", "lift", "shake")) + " %")
+        cells.append(" / ".join(agree(pairs, key) for key in ("lift", "shake")) + " %")
+        name = f"**{group}**" if group == "all" else group
+        lines.append(f"| {name} | {len(annotated)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def bench_osgd(before: Path, data_dir: Path, every: int) -> None:
+    sys.path.insert(0, str(ROOT))
+    from osgd.checks.validate import load_grasps  # noqa: PLC0415
+
+    jobs = load_grasps(ROOT / "pipelines" / "osgd.toml", data_dir, 1)[::every]
+    with tempfile.NamedTemporaryFile(suffix=".pickle") as jobs_file:
+        Path(jobs_file.name).write_bytes(pickle.dumps(jobs))
+        old, new = (run_side(code, "osgd", jobs_file.name, OSGD_SETTINGS) for code in (before, ROOT))
+    trials = len(new["rows"])
+    grasps = sum(len(job["grasps"]) for job in jobs)
+    old_rate, new_rate = trials / old["seconds"], trials / new["seconds"]
+    print(f"\nOSGD set, every {every}. model ({len(jobs)} models, {grasps} grasps x 4 sets = {trials} trials), "
+          f"settings of pipelines/osgd.toml, one core each side: before {old_rate:.1f} trials/s "
+          f"({old['seconds']:.0f} s), after {new_rate:.1f} trials/s ({new['seconds']:.0f} s): "
+          f"**{new_rate / old_rate:.2f}x**\n")
+    print(fidelity_table(old["rows"], new["rows"]))
 
 
 def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--side":
+        code, task, argument, settings, out = sys.argv[2:7]
+        sys.path[:0] = [code, str(ROOT / "tests")]
+        import osgd  # noqa: PLC0415
+
+        if not Path(osgd.__file__).is_relative_to(code):
+            raise SystemExit(f"side {code}: imported osgd from {osgd.__file__}")
+        result = (side_fixture(int(argument), json.loads(settings)) if task == "fixture"
+                  else side_osgd(Path(argument), json.loads(settings)))
+        Path(out).write_text(json.dumps(result))
+        return
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--trials", type=int, default=150, help="fixture trials timed on one core")
+    parser.add_argument("--before", default=BEFORE, help="git ref of the trial to compare with")
+    parser.add_argument("--trials", type=int, default=150, help="fixture trials timed on one core, each side")
+    parser.add_argument("--every", type=int, default=1, help="compare every n-th of the authors' models")
     parser.add_argument("--data-dir", type=Path, default=Path(tempfile.gettempdir()) / "osgd-bench-checks")
     parser.add_argument("--quick", action="store_true", help="fixture trials only")
     arguments = parser.parse_args()
-    baseline = bench_fixture_trials(arguments.trials, ChecksStageParams(pad_contact="rigid"), "rigid pads")
-    soft = bench_fixture_trials(arguments.trials, ChecksStageParams(), "soft pads, lift and shake")
-    mesh = bench_fixture_trials(arguments.trials, ChecksStageParams(approach_geometry="mesh"),
-                                "soft pads, approach against the mesh")
-    print(f"soft pads against rigid pads, same run: {soft / baseline:.2f}x the trials per second; "
-          f"with the approach against the mesh: {mesh / baseline:.2f}x")
-    if arguments.quick:
-        pass
-    elif OSGD_MODELS.is_dir():
-        bench_osgd_set(arguments.data_dir, arguments.workers)
-    else:
-        print(f"OSGD set: skipped, the shared models are not at {OSGD_MODELS}")
-    own, children = peak_memory_mib()
-    print(f"peak resident memory: {own:.0f} MiB this process, {children:.0f} MiB largest worker")
+    with tempfile.TemporaryDirectory(prefix="osgd-checks-before-") as before:
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", arguments.before, "osgd"],
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", before], input=archive, check=True)
+        print(f"before: osgd of {arguments.before}; after: osgd of this tree\n")
+        bench_fixture(Path(before), arguments.trials)
+        osgd_models = ROOT.parent / "shared" / "osgd-models"
+        if arguments.quick:
+            pass
+        elif osgd_models.is_dir():
+            bench_osgd(Path(before), arguments.data_dir, arguments.every)
+        else:
+            print(f"OSGD set: skipped, the shared models are not at {osgd_models}")
 
 
 if __name__ == "__main__":

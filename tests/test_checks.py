@@ -12,6 +12,7 @@ import trimesh
 from helpers import block_parts, fixture_models, hammer_parts, model_row, write_models
 from scipy.spatial.transform import Rotation
 
+from osgd.checks import trial as trial_module
 from osgd.checks.params import ChecksStageParams
 from osgd.checks.stage import ChecksStage, trial_seed
 from osgd.checks.summary import acceptance_counts, format_acceptance
@@ -173,6 +174,51 @@ def test_violent_shake_drops_what_the_lift_keeps() -> None:
     # 8 cm in 0.25 s: a peak acceleration of about 5 g.
     violent = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05, ChecksStageParams(shake_distance=0.08))
     assert violent.fail_reason == "dropped_on_shake"
+
+
+# -- trials that stop once their outcome is known -----------------------------------
+
+FULL_HOLD = ChecksStageParams(hold_still_duration=0.0)
+
+
+@pytest.fixture
+def full_length(monkeypatch):
+    """The trial with every phase run to its end: no grip tests in the lift and hold, the whole hold."""
+    def run(model: dict, position: list[float], quaternion: np.ndarray, width: float) -> object:
+        with monkeypatch.context() as patch:
+            patch.setattr(trial_module, "_HOLD_CHECK_INTERVAL", 10**9)
+            return trial(model, position, quaternion, width, FULL_HOLD)
+    return run
+
+
+def test_an_object_lost_on_the_lift_ends_the_trial_there(full_length) -> None:
+    block = model_row("slippery", "knife", block_parts(), density=3000.0, friction=(0.05, 0.01, 0.01))
+    early = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05)
+    full = full_length(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05)
+    assert early.fail_reason == full.fail_reason == "slipped_on_lift"
+    assert early.sim_steps < full.sim_steps
+    assert not early.lift_stable and not early.shake_stable
+
+
+def test_a_still_object_ends_the_hold_early_with_the_outcome_of_the_full_hold(models, full_length) -> None:
+    for name, position, width in (("block", [0.0, 0.0, 0.0], 0.05), ("hammer", [-0.02, 0.0, 0.0], 0.035)):
+        early = trial(models[name], position, ACROSS_Y, width)
+        full = full_length(models[name], position, ACROSS_Y, width)
+        assert (early.stable, early.lift_stable, early.shake_stable, early.fail_reason) == (
+            full.stable, full.lift_stable, full.shake_stable, full.fail_reason), name
+        # The hold of 24 steps at 1/240 s ends after 8.
+        assert full.sim_steps - early.sim_steps == 16, name
+
+
+def test_a_grasp_that_hits_the_mesh_on_the_approach_builds_no_world(models, monkeypatch) -> None:
+    def no_world(*_args, **_kwargs):
+        raise AssertionError("a world was set up for a grasp that the geometry rejects")
+
+    monkeypatch.setattr(trial_module, "_setup_world", no_world)
+    result = trial(models["block"], [0.0, 0.0, 0.0], ACROSS_Y, 0.03, MESH_APPROACH)
+    assert result.fail_reason == "approach_collision"
+    assert result.sim_steps == 0
+    assert result.final_opening == PANDA.max_opening
 
 
 def test_same_seed_same_result_regardless_of_earlier_trials(models) -> None:

@@ -13,7 +13,9 @@ GraspGen (REFERENCE section 5) in a world with no floor:
    ``approach_geometry`` says what the object is here: its convex parts in
    pybullet (``hulls``), or samples of its own surface (``mesh``), which
    keep the concavities a decomposition fills (between a screwdriver's
-   handle and shaft, between a pair of pliers' jaws).
+   handle and shaft, between a pair of pliers' jaws). The ``mesh`` test is
+   geometry alone and runs before any physics is set up: a grasp that fails
+   it never builds a world.
 2. **Close.** Gravity is off: the object floats where the grasp says, so
    fingertips never stop on a floor above a thin object (REFERENCE section 8)
    and the object is free to centre itself between the pads, as it would on
@@ -21,11 +23,17 @@ GraspGen (REFERENCE section 5) in a world with no floor:
    ``close_speed`` with the grip force limit until they are still. Unless
    both pads then touch the object, the trial ends as ``empty_close``.
 3. **Lift.** Gravity is switched on and the hand rises ``lift_height``, then
-   holds still. The object's pose relative to the hand after closing is the
-   reference of all slip measures; if the object is no longer touched by
-   both pads, or has slipped more than ``max_slip_distance`` /
-   ``max_slip_rotation``, the trial ends as ``slipped_on_lift``. The
-   outcome here is the ``lift`` criterion (the paper's check).
+   holds still for at most ``hold_duration``. The object's pose relative to
+   the hand after closing is the reference of all slip measures; if the
+   object is no longer touched by both pads, or has slipped more than
+   ``max_slip_distance`` / ``max_slip_rotation``, the trial ends as
+   ``slipped_on_lift``. The outcome here is the ``lift`` criterion (the
+   paper's check). Both the lift and the hold stop as soon as their outcome
+   is known: every few steps an object no longer gripped ends the trial
+   there (with no floor and gravity on, it has fallen away), and the hold
+   ends once the object has been still in the hand (its pose in the hand
+   within ``hold_still_distance`` / ``hold_still_rotation``) for
+   ``hold_still_duration``.
 4. **Shake.** Three linear shakes (one sine period of ``shake_distance``
    amplitude along each axis of a random frame) then three rotational ones
    (``shake_angle`` about each axis of the same frame, through the grasp
@@ -72,8 +80,9 @@ FAIL_REASONS: tuple[str, ...] = ("approach_collision", "empty_close", "slipped_o
 #: so the approach axis z points down.
 GRASP_QUATERNION_IN_WORLD = np.array([1.0, 0.0, 0.0, 0.0])
 
-#: During the shake the hold is tested every this many steps (cheaper than
-#: every step; a dropped object falls clear of the pads within a few).
+#: During the lift, the hold and the shake the grip is tested every this many
+#: steps (cheaper than every step; a dropped object falls clear of the pads
+#: within a few), and during the hold the object's stillness in the hand.
 _HOLD_CHECK_INTERVAL = 8
 
 #: Cap on the surface samples of the ``mesh`` approach test (the spacing grows past it).
@@ -367,8 +376,23 @@ def _close(trial: _Trial, grip_force: float) -> bool:
     return trial.gripped()
 
 
+def _moved(before: tuple[np.ndarray, np.ndarray], after: tuple[np.ndarray, np.ndarray],
+           params: ChecksStageParams) -> bool:
+    """Whether the object's pose in the hand changed beyond ``hold_still_distance`` / ``hold_still_rotation``."""
+    if np.linalg.norm(after[0] - before[0]) >= params.hold_still_distance:
+        return True
+    turn = Rotation.from_quat(before[1]).inv() * Rotation.from_quat(after[1])
+    return bool(turn.magnitude() >= params.hold_still_rotation)
+
+
 def _lift(trial: _Trial) -> bool:
-    """Gravity on, lift the hand and hold it still; whether the object is held."""
+    """Gravity on, lift the hand and hold it still; whether the object is held.
+
+    Every :data:`_HOLD_CHECK_INTERVAL` steps an object that is no longer
+    gripped ends the lift or the hold as not held, and in the hold an object
+    that has been still in the hand for ``hold_still_duration`` ends it
+    early (a decision on simulated state alone).
+    """
     pybullet = pybullet_module()
     params = trial.params
     pybullet.setGravity(0.0, 0.0, -params.gravity, physicsClientId=trial.client)
@@ -378,8 +402,24 @@ def _lift(trial: _Trial) -> bool:
         fraction = (1 - np.cos(np.pi * index / lift_steps)) / 2
         trial.hand.move_to(np.array([0.0, 0.0, fraction * params.lift_height]), GRASP_QUATERNION_IN_WORLD)
         trial.step()
-    for _ in range(_steps(params.hold_duration, params.timestep) if params.hold_duration > 0 else 0):
+        if index % _HOLD_CHECK_INTERVAL == 0 and not trial.gripped():
+            return False
+    hold_steps = _steps(params.hold_duration, params.timestep) if params.hold_duration > 0 else 0
+    still_steps = _steps(params.hold_still_duration, params.timestep) if params.hold_still_duration > 0 else 0
+    # The object's pose in the hand when it was last seen moving, and the hold step of that test.
+    anchor, anchor_index = (trial.object_in_hand(), 0) if still_steps and hold_steps else (None, 0)
+    for index in range(1, hold_steps + 1):
         trial.step()
+        if index % _HOLD_CHECK_INTERVAL:
+            continue
+        if not trial.gripped():
+            return False
+        if anchor is not None:
+            pose = trial.object_in_hand()
+            if _moved(anchor, pose, params):
+                anchor, anchor_index = pose, index
+            elif index - anchor_index >= still_steps:
+                break
     return trial.held()
 
 
@@ -451,8 +491,19 @@ def run_trial(
         The ``lift`` outcome is decided after the hold; the shakes run only
         for grasps that pass it.
     """
-    client = process_client() if client is None else client
     params = trial_params(params, float(model["mass"]))
+    opening = float(np.clip(width, 0.0, gripper.max_opening))
+    if params.approach_geometry == "mesh":
+        if surface is None:
+            surface = approach_surface(model, params)
+        if approach_hits_surface(surface, np.asarray(grasp_position, dtype=np.float64),
+                                 np.asarray(grasp_quaternion, dtype=np.float64), opening, params, gripper):
+            # Decided by geometry: no world is built (the hand would stand fully open, no step simulated).
+            return TrialResult(
+                stable=False, lift_stable=False, shake_stable=False, fail_reason="approach_collision",
+                slip_distance=0.0, slip_rotation=0.0, final_opening=float(gripper.max_opening), sim_steps=0,
+            )
+    client = process_client() if client is None else client
     _setup_world(client, params)
     hand = create_hand(
         client, gripper, palm_mass=params.palm_mass, finger_mass=params.finger_mass,
@@ -460,16 +511,8 @@ def run_trial(
     )
     body = _place_object(client, model, grasp_position, grasp_quaternion, params)
     trial = _Trial(client, hand, body, params)
-    opening = float(np.clip(width, 0.0, gripper.max_opening))
-
-    if params.approach_geometry == "mesh":
-        if surface is None:
-            surface = approach_surface(model, params)
-        collides = approach_hits_surface(surface, np.asarray(grasp_position, dtype=np.float64),
-                                         np.asarray(grasp_quaternion, dtype=np.float64), opening, params, gripper)
-    else:
-        collides = _approach_collides(trial, np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening)
-    if collides:
+    if params.approach_geometry != "mesh" and _approach_collides(trial, np.zeros(3), GRASP_QUATERNION_IN_WORLD,
+                                                                 opening):
         return trial.result("approach_collision")
     hand.reset(np.zeros(3), GRASP_QUATERNION_IN_WORLD, opening)
     if not _close(trial, gripper.grip_force if params.grip_force is None else params.grip_force):
