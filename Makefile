@@ -72,11 +72,16 @@ bench: install
 	@for script in benchmarks/bench_*.py; do echo "== $$script"; $(BIN)/python $$script || exit 1; done
 
 # Table II: on a CPU the recipe's data (the pipeline RECIPE names) and one hour of training per model (five hours);
-# on a GPU the paper's scale.
+# on a GPU the paper's scale. Also per test set: the recipe's test piles (seen tools), piles of novel procedural
+# tools (pipelines/recipe-novel.toml) and, where OSGD_MODELS_DIR (default ../shared/osgd-models) exists, of the
+# paper authors' models (pipelines/recipe-authors.toml).
 RECIPE := recipe-pairs96
+OSGD_MODELS_DIR ?= ../shared/osgd-models
+TEST_SETS = seen=$(RECIPE) novel=recipe-novel $(if $(wildcard $(OSGD_MODELS_DIR)),authors=recipe-authors)
 table: install
-	$(BIN)/osgd --data-dir $(DATA_DIR) $(if $(WORKERS),--workers $(WORKERS)) run pipelines/$(RECIPE).toml
-	$(BIN)/togcrf reproduce --data $(DATA_DIR) --pipeline $(RECIPE) --out runs/table2
+	for pipeline in $(foreach set,$(TEST_SETS),$(lastword $(subst =, ,$(set)))); do \
+		$(BIN)/osgd --data-dir $(DATA_DIR) $(if $(WORKERS),--workers $(WORKERS)) run pipelines/$$pipeline.toml || exit 1; done
+	$(BIN)/togcrf reproduce --data $(DATA_DIR) --pipeline $(RECIPE) --out runs/table2 $(foreach set,$(TEST_SETS),--test-set $(set))
 
 # Table II on a GPU machine: gpu/table-gpu.sh installs, builds pipelines/gpu.toml, measures,
 # trains and evaluates, each call within DEADLINE seconds; call it again until it prints "table-gpu: done".

@@ -139,7 +139,8 @@ def fixture_models() -> list[dict]:
 
 
 def synthetic_sample_row(
-    rng: np.random.Generator, index: int, height: int = 128, width: int = 128, split: str = "train"
+    rng: np.random.Generator, index: int, height: int = 128, width: int = 128, split: str = "train",
+    model_prefix: str = "synthetic",
 ) -> dict:
     """A learnable stand-in for a rendered sample, as a real ``samples`` row.
 
@@ -147,6 +148,7 @@ def synthetic_sample_row(
     table encodes its category, and grasps lie across it: the category's task
     on the half towards the bar's start ("handle"), "hand over" on the other
     half. Used by togcrf tests before (and independently of) the renderer.
+    Each bar's model id is ``model_prefix`` and its category number.
     """
     from osgd.contract.encoding import encode_depth, encode_mask  # noqa: PLC0415
     from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK  # noqa: PLC0415
@@ -185,7 +187,7 @@ def synthetic_sample_row(
                 "quaternion": [0.0, 0.0, 0.0, 1.0],
                 "width": 0.04,
             })
-        objects.append({"object_index": object_index, "model_id": f"synthetic{category_number}",
+        objects.append({"object_index": object_index, "model_id": f"{model_prefix}{category_number}",
                         "category": category, "box": [0.0, 0.0, 0.0, 0.0], "visible_fraction": 1.0})
     for obj in objects:
         ys, xs = np.nonzero(mask == obj["object_index"] + 1)
@@ -206,23 +208,24 @@ def synthetic_sample_row(
 
 
 def write_synthetic_samples(store: ShardStore, count: int, seed: int = 0, test_every: int = 5,
-                            height: int = 128, width: int = 128) -> list[str]:
+                            height: int = 128, width: int = 128, pipeline: str = "synthetic") -> list[str]:
     """Write ``count`` synthetic samples in shards of 8; returns the keys.
 
     Every ``test_every``-th sample is in the test split. Also writes a
-    ``synthetic`` pipeline manifest listing the shards, as the pipeline does.
+    manifest named ``pipeline`` listing the shards, as the pipeline does; the
+    bars' model ids start with the pipeline's name.
     """
     from osgd.contract.schemas import SAMPLES, SCHEMA_VERSION  # noqa: PLC0415
 
     rng = np.random.default_rng(seed)
-    rows = [synthetic_sample_row(rng, index, height, width, "test" if index % test_every == 0 else "train")
-            for index in range(count)]
+    rows = [synthetic_sample_row(rng, index, height, width, "test" if index % test_every == 0 else "train",
+                                 model_prefix=pipeline) for index in range(count)]
     records = []
     for start in range(0, count, 8):
-        key = hashlib.sha256(f"synthetic-{seed}-{start}-{count}".encode()).hexdigest()
+        key = hashlib.sha256(f"{pipeline}-{seed}-{start}-{count}".encode()).hexdigest()
         records.append(store.write("samples", key, f"synthetic_{start}",
                                    pa.Table.from_pylist(rows[start:start + 8], schema=SAMPLES)))
-    store.write_manifest("synthetic", {"pipeline": "synthetic", "schema_version": SCHEMA_VERSION, "stages": {
+    store.write_manifest(pipeline, {"pipeline": pipeline, "schema_version": SCHEMA_VERSION, "stages": {
         "samples": {"shards": [record.as_dict() for record in records]}}})
     return [record.key for record in records]
 

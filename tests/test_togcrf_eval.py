@@ -220,3 +220,37 @@ def test_table_names_the_seeds_and_averages_over_them(tmp_path: Path) -> None:
     assert names == ["TOG [ours]", "TOG [lab]"], result.output
     result = CliRunner().invoke(app, ["table", str(runs[0]), str(lab), "--mixed", "--mean"])
     assert result.exit_code == 1 and "--mean averages one protocol" in result.output
+
+
+def test_eval_on_test_sets_scores_each_set_under_both_protocols_and_counts_novel_tools(
+    trained: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """--test-set: one table of every (set, protocol); the tools never trained on are counted by model id."""
+    _, checkpoint = trained
+    data = tmp_path / "data"
+    for pipeline in ("synthetic", "novel"):  # the training pipeline, and one of other tools in the same data dir
+        write_synthetic_samples(ShardStore(data), 10, seed=0 if pipeline == "synthetic" else 4, test_every=5,
+                                pipeline=pipeline)
+    out = tmp_path / "sets.json"
+    result = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data), "--test-set", "seen=synthetic",
+                                      "--test-set", "novel=novel", "--out", str(out), "--speed-images", "1"])
+    assert result.exit_code == 0, result.output
+    for name in ("seen", "novel"):
+        assert all(f"{name} [{protocol}]" in result.output for protocol in ("ours", "lab"))
+    document = json.loads(out.read_text())
+    seen, novel = document["test_sets"]["seen"], document["test_sets"]["novel"]
+    trained_models = set(load_checkpoint(checkpoint)[1]["data"]["models"])
+    assert trained_models and all(model.startswith("synthetic") for model in trained_models)
+    assert seen["novel_tools"] == 0 and novel["tools"] >= 1 and novel["novel_tools"] == novel["tools"]
+    assert seen["images"] == novel["images"] == 2 and document["speed"]["fps"] > 0
+    # one pass scores both protocols: each equals a plain evaluation under it
+    for protocol in ("ours", "lab"):
+        single = tmp_path / f"{protocol}.json"
+        assert CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data), "--pipeline", "synthetic",
+                                        "--out", str(single), "--speed-images", "0",
+                                        "--protocol", protocol]).exit_code == 0
+        plain = json.loads(single.read_text())["metrics"]
+        columns = TABLE_COLUMNS[:-1]
+        assert {key: plain[key] for key in columns} == {key: seen["metrics"][protocol][key] for key in columns}
+    bad = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data), "--test-set", "seen"])
+    assert bad.exit_code != 0 and "NAME=PIPELINE" in bad.output

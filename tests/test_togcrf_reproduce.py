@@ -44,12 +44,18 @@ def test_the_gpu_scale_is_the_cpu_recipe_at_native_size():
 def test_reproduce_writes_both_protocols_tables(tmp_path):
     data_dir = tmp_path / "data"
     write_synthetic_samples(ShardStore(data_dir), 10, test_every=5)
+    write_synthetic_samples(ShardStore(data_dir), 10, seed=2, test_every=5, pipeline="novel")
     tiny = replace(SMALL, epochs=1, image_size=64, max_samples=2, eval_max_samples=2, warmup_steps=1,
                    model_options={"grasp_head.channels": 32, "box_head.size": 128,
                                   "box_head.detections_per_image": 5})
     result = reproduce(data_dir, tmp_path / "out", tiny, pipeline="synthetic", models=("tog",), device="cpu",
-                       speed_images=1)
+                       speed_images=1, test_sets={"seen": "synthetic", "novel": "novel"})
     assert [name for name, _ in result["rows"]] == ["TOG"]
+    # the table per test set: a row per set and protocol, the novel set's tools all unseen
+    sets = (tmp_path / "out" / "table2-sets.txt").read_text()
+    assert all(f"TOG / {name} [{protocol}]" in sets for name in ("seen", "novel") for protocol in ("ours", "lab"))
+    novel = json.loads((tmp_path / "out" / "table2-sets.json").read_text())["runs"]["TOG"]["test_sets"]["novel"]
+    assert novel["images"] == 2 and novel["tools"] >= 1 and novel["novel_tools"] == novel["tools"]
     for suffix, protocol in (("", "ours"), ("-lab", "lab")):
         assert (tmp_path / "out" / f"table2{suffix}.txt").read_text().startswith(f"Algorithm [protocol: {protocol}]")
         table = json.loads((tmp_path / "out" / f"table2{suffix}.json").read_text())

@@ -26,8 +26,10 @@ from osgd.contract.samples import iter_samples
 from osgd.pipeline import load_pipeline
 from osgd.samples.renderer import make_renderer
 from osgd.store import ShardStore, canonical_json
+from togcrf.checkpoint import read_checkpoint
 from togcrf.cli import app
 from togcrf.robot import report
+from togcrf.robot.cli import novel_tools
 from togcrf.robot.execute import REASONS, Execution, execute, judge
 from togcrf.robot.lifting import RobotParams, lift_rectangle
 from togcrf.robot.pile import clear_grasps, feasible_pile, task_grasps
@@ -273,3 +275,17 @@ def test_a_checkpoint_policy_takes_test_time_views(tmp_path: Path) -> None:
     assert not np.allclose(plain.last_detections.grasp_stability, viewed.last_detections.grasp_stability)
     with pytest.raises(ValueError, match="1, 2, 4, 8"):
         make_policies(replace(spec, views=3), None)
+
+
+def test_robot_eval_counts_the_pile_tools_a_checkpoint_never_trained_on(tmp_path: Path) -> None:
+    """Piles of another pipeline's tools: each checkpoint says how many of them its training never showed."""
+    write_synthetic_samples(ShardStore(tmp_path / "data"), 4)
+    run = tmp_path / "run"
+    train(TrainConfig(data=str(tmp_path / "data"), out=str(run), pipeline="synthetic", model="tog",
+                      backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1,
+                      device="cpu", amp=False, model_options={"box_head.detections_per_image": 5}))
+    trained = set(read_checkpoint(run / "checkpoint.pt")["data"]["models"])
+    assert trained and trained <= {"synthetic0", "synthetic1", "synthetic2"}
+    tools = {*trained, "procedural/hammer_00", "osgd/hammer_001"}
+    assert novel_tools([run], tools) == {str(run): 2}  # a run dir or its checkpoint.pt
+    assert novel_tools([run / "checkpoint.pt"], trained) == {str(run / "checkpoint.pt"): 0}

@@ -437,21 +437,22 @@ class SamplesDataset(Dataset):
         """Keys (file stems) of the shards read, in order."""
         return [path.stem for path in self.shards]
 
-    def models_shown(self, model_ids: Collection[str]) -> dict[str, str]:
-        """Which of ``model_ids`` the objects of this dataset's items show, each with the first sample showing it.
+    def models_shown(self, model_ids: Collection[str] | None = None) -> dict[str, str]:
+        """Which of ``model_ids`` (None: every model) the objects of this dataset's items show, each with the first
+        sample showing it.
 
         Reads the ``objects`` column of each shard (``osgd.contract.samples.shard_sample_models``); the
         objects are the sample's annotated ones, those visible enough to keep (docs/samples.md, "Objects").
         """
-        wanted = set(model_ids)
+        wanted = None if model_ids is None else set(model_ids)
         rows: dict[int, set[int]] = {}
         for shard_number, row in self.index:
             rows.setdefault(shard_number, set()).add(row)
         shown: dict[str, str] = {}
-        for shard_number in sorted(rows) if wanted else ():
+        for shard_number in sorted(rows) if wanted is None or wanted else ():
             for row, (sample_id, _, models) in enumerate(shard_sample_models(self.shards[shard_number])):
                 if row in rows[shard_number]:
-                    for model_id in wanted.intersection(models):
+                    for model_id in models if wanted is None else wanted.intersection(models):
                         shown.setdefault(model_id, sample_id)
         return shown
 

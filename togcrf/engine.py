@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -258,6 +258,7 @@ def evaluate_model(
     protocol: str = "ours",
     depth_reference: str = "table",
     views: int = 1,
+    protocols: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Table II metrics and speed of a model on samples.
 
@@ -281,24 +282,31 @@ def evaluate_model(
     views : int
         Test-time views averaged per image (:mod:`togcrf.tta`, ``VIEW_COUNTS``); 1: the image as given.
         The speed is measured with the same views.
+    protocols : sequence of str
+        Further protocols scored on the same detections (one pass of the model).
 
     Returns
     -------
     dict
-        ``metrics`` (with its ``protocol``) and ``speed`` (None when skipped).
+        ``metrics`` (with its ``protocol``) and ``speed`` (None when skipped); with ``protocols``, also
+        ``metrics_by_protocol``: ``protocol`` and each of ``protocols`` to its metrics.
 
     Raises
     ------
     ValueError
         If there are no samples, the protocol is unknown, or the views are not allowed for the model.
     """
-    evaluator = TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task, protocol=protocol)
+    evaluators = {name: TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task, protocol=name)
+                  for name in dict.fromkeys([protocol, *protocols])}
+    evaluator = evaluators[protocol]
     kept_images: list[torch.Tensor] = []
     model.eval()
     for sample in samples:
         image, scale = depth_to_tensor(sample.depth, image_size, depth_reference)
         image = image.to(device)
-        evaluator.add(run_model(model, image, scale, views), GroundTruth.from_sample(sample))
+        detections, truth = run_model(model, image, scale, views), GroundTruth.from_sample(sample)
+        for each in evaluators.values():
+            each.add(detections, truth)
         if len(kept_images) < speed_images:
             kept_images.append(image)
     if evaluator.images == 0:
@@ -311,7 +319,11 @@ def evaluate_model(
 
         speed = dict(measure_speed(run_once, kept_images, warmup=min(2, len(kept_images)), device=device))
         speed.update(crf_time_share(model, run_once, kept_images, device))
-    return {"metrics": evaluator.result(), "speed": speed}
+    scored = {name: each.result() for name, each in evaluators.items()}
+    result = {"metrics": scored[protocol], "speed": speed}
+    if protocols:
+        result["metrics_by_protocol"] = scored
+    return result
 
 
 def crf_time_share(model: torch.nn.Module, run_once: Any, inputs: list[torch.Tensor], device: str) -> dict[str, float]:

@@ -16,6 +16,18 @@ see :mod:`togcrf.metrics`; a file without it predates the option and is
 ``ours``), ``metrics`` (fractions; see :meth:`TableTwoEvaluator.result`),
 ``speed`` (see :func:`togcrf.metrics.measure_speed`) and ``row`` (the Table
 II numbers as printed).
+
+Test sets: ``togcrf eval CHECKPOINT --data DIR --test-set seen=PIPELINE
+--test-set novel=PIPELINE ...`` scores the test split of each named
+pipeline of the data dir under both protocols in one pass per set and prints
+one table (a row per set and protocol). Each set also says how many of its
+test tools (the model ids its test samples show) the checkpoint never saw in
+training (``data.models`` of the checkpoint, the tools of its training
+samples). Its JSON (``eval-sets.json`` by the checkpoint unless ``--out``)
+holds ``checkpoint``, ``data``, ``speed`` and ``test_sets``: for each name,
+``pipeline``, ``images``, ``tools``, ``novel_tools`` (None for a checkpoint
+that does not record its training tools), and ``metrics`` and ``row`` per
+protocol.
 """
 
 from __future__ import annotations
@@ -34,7 +46,7 @@ import numpy as np
 import torch
 import typer
 
-from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
+from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary, shard_sample_models
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.engine import evaluate_model, resolve_device
 from togcrf.metrics import PROTOCOLS
@@ -48,6 +60,9 @@ TABLE_COLUMNS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10", "fps
 
 #: Name of the evaluation file a run dir holds.
 EVAL_FILE = "eval.json"
+
+#: Name of the file of an evaluation on several test sets.
+TEST_SETS_FILE = "eval-sets.json"
 
 
 def table_row(result: dict[str, Any]) -> dict[str, float | None]:
@@ -148,7 +163,104 @@ def evaluate_checkpoint(
     return result
 
 
-def format_table(rows: Sequence[tuple[str, dict[str, float | None]]], protocol: str | None = None) -> str:
+def parse_test_sets(items: Sequence[str]) -> dict[str, str]:
+    """``NAME=PIPELINE`` items (``--test-set``) as a name -> pipeline mapping, in the order given."""
+    sets: dict[str, str] = {}
+    for item in items:
+        name, separator, pipeline = item.partition("=")
+        if not separator or not name.strip() or not pipeline.strip():
+            raise ValueError(f"--test-set {item!r}: expected NAME=PIPELINE, e.g. novel=recipe-novel")
+        if name.strip() in sets:
+            raise ValueError(f"--test-set {item!r}: the name {name.strip()!r} is given twice")
+        sets[name.strip()] = pipeline.strip()
+    return sets
+
+
+def test_split_tools(shards: Sequence[Any]) -> frozenset[str]:
+    """The model ids the test samples of ``shards`` show (their annotated objects)."""
+    return frozenset(model for shard in shards for _, split, models in shard_sample_models(shard)
+                     if split == "test" for model in models)
+
+
+def evaluate_test_sets(
+    checkpoint: Path,
+    data_dir: Path,
+    test_sets: dict[str, str],
+    *,
+    device: str = "cpu",
+    max_samples: int | None = None,
+    speed_images: int = 10,
+    unmatched_task: str = "nearest",
+    views: int = 1,
+) -> dict[str, Any]:
+    """Table II of a checkpoint on the test split of each named pipeline, under every protocol.
+
+    The speed is measured once, on the first set.
+
+    Returns
+    -------
+    dict
+        The document of the module docstring ("Test sets").
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As :func:`evaluate_checkpoint`, naming the set.
+    """
+    check_view_count(views)
+    if not Path(checkpoint).is_file():
+        raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
+    model, config = load_checkpoint(checkpoint, device=device)
+    trained = (config.get("data") or {}).get("models")
+    sets: dict[str, Any] = {}
+    speed = None
+    for name, pipeline in test_sets.items():
+        shards = sample_shards(data_dir, pipeline)
+        check_vocabulary(config["vocabulary"], samples_vocabulary(shards), str(checkpoint), f"{data_dir}/samples")
+        tools = test_split_tools(shards)
+        samples = iter_samples(data_dir, split="test", shards=shards)
+        try:
+            result = evaluate_model(model, samples if max_samples is None else islice(samples, max_samples),
+                                    config.get("image_size"), device=device,
+                                    speed_images=speed_images if speed is None else 0, unmatched_task=unmatched_task,
+                                    depth_reference=config["depth_reference"], views=views, protocols=PROTOCOLS)
+        except ValueError as error:
+            raise ValueError(f"test set {name!r} ({data_dir}, pipeline {pipeline}): {error}") from error
+        speed = speed or result["speed"]
+        by_protocol = result["metrics_by_protocol"]
+        sets[name] = {"pipeline": pipeline, "images": by_protocol[PROTOCOLS[0]]["images"], "tools": len(tools),
+                      "novel_tools": None if trained is None else len(tools - set(trained)),
+                      "metrics": by_protocol,
+                      "row": {protocol: table_row({"metrics": metrics, "speed": speed})
+                              for protocol, metrics in by_protocol.items()}}
+    return {"model": config.get("model", "unknown"), "checkpoint": str(checkpoint), "data": str(data_dir),
+            "unmatched_task": unmatched_task, "test_time_views": views, "torch_threads": torch.get_num_threads(),
+            "speed": speed, "test_sets": sets}
+
+
+def format_test_sets(documents: Sequence[tuple[str, dict[str, Any]]]) -> str:
+    """One table of :func:`evaluate_test_sets` documents: a row per (run, set, protocol), then each set's tools.
+
+    Parameters
+    ----------
+    documents : sequence of (str, dict)
+        A name for each run ("" for one run) and its document.
+    """
+    rows = [(f"{run + ' / ' if run else ''}{name} [{protocol}]", row)
+            for run, document in documents for name, entry in document["test_sets"].items()
+            for protocol, row in entry["row"].items()]
+    lines = [format_table(rows, title="Test set [protocol]")]
+    first = documents[0][1]["test_sets"] if documents else {}
+    for name, entry in first.items():
+        novel = "not recorded by the checkpoint" if entry["novel_tools"] is None else \
+            f"{entry['novel_tools']} never in training"
+        lines.append(f"{name}: pipeline {entry['pipeline']}, {entry['images']} test images, "
+                     f"{entry['tools']} tools ({novel})")
+    return "\n".join(lines)
+
+
+def format_table(rows: Sequence[tuple[str, dict[str, float | None]]], protocol: str | None = None,
+                 title: str = "Algorithm") -> str:
     """Table II as fixed-width text: one line per (name, row).
 
     Parameters
@@ -157,12 +269,14 @@ def format_table(rows: Sequence[tuple[str, dict[str, float | None]]], protocol: 
         Name and :func:`table_row` of each line.
     protocol : str, optional
         Named in the header (``Algorithm [protocol: lab]``) when given.
+    title : str
+        The header of the name column.
 
     Returns
     -------
     str
     """
-    title = "Algorithm" if protocol is None else f"Algorithm [protocol: {protocol}]"
+    title = title if protocol is None else f"{title} [protocol: {protocol}]"
     name_width = max([len(title), *(len(name) for name, _ in rows)])
     header = title.ljust(name_width) + "".join(f"{column:>13}" for column in TABLE_COLUMNS)
     lines = [header, "-" * len(header)]
@@ -327,8 +441,26 @@ def eval_command(
     views: Annotated[int, typer.Option(help="Test-time views: average each detection's grasp candidates over "
                                             "1 (off), 2, 4 or 8 flipped and turned copies of the image "
                                             "(togcrf.tta); slower, and fps is measured with them.")] = 1,
+    test_set: Annotated[list[str] | None, typer.Option(
+        "--test-set", metavar="NAME=PIPELINE",
+        help="Score the test split of this pipeline of the data dir as a named test set, under both protocols "
+             f"(repeat for several: one table; written to {TEST_SETS_FILE}); replaces --pipeline, --split and "
+             "--protocol.")] = None,
 ) -> None:
-    """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON."""
+    """Evaluate a checkpoint: print its Table II row (mAP, mAP-G, Acc-T top-1/5/10, fps) and write JSON.
+
+    With --test-set: Table II per test set (seen tools, novel tools, the authors' models...), both protocols.
+    """
+    if test_set:
+        sets = parse_test_sets(test_set)
+        document = evaluate_test_sets(checkpoint, data, sets, device=str(resolve_device(device)),
+                                      max_samples=max_samples, speed_images=speed_images,
+                                      unmatched_task=unmatched_task, views=views)
+        path = out if out is not None else Path(checkpoint).parent / TEST_SETS_FILE
+        write_json(path, {**document, "command": command_line()})
+        typer.echo(format_test_sets([("", document)]))
+        typer.echo(f"written to {path}")
+        return
     document = evaluate_checkpoint(checkpoint, data, pipeline=pipeline, split=split,
                                    device=str(resolve_device(device)),
                                    max_samples=max_samples, speed_images=speed_images,

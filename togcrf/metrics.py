@@ -47,6 +47,13 @@ Acc-T top-k
     distance (one rectangle annotated with several tasks) accept any of the
     tied tasks. A detection with fewer than k candidates is judged on all
     of them; one with none is a negative.
+Acc-T by crowding
+    Acc-T top-k of the same detections in strata: by the share of the
+    detection box's pixels that show other objects (the sample's instance
+    mask: neither the table nor the matched object; bins
+    :data:`COVER_BINS`), where the paper says the CRF acts, and by the
+    number of annotated objects in the image. Only for ground truth that
+    carries the mask (:meth:`GroundTruth.from_sample`).
 Speed
     Frames per second of the full model on one image at a time (batch 1),
     after warm-up runs, on a stated device; see :func:`measure_speed`.
@@ -96,6 +103,7 @@ import logging
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Any, Literal
 
 import numpy as np
@@ -112,6 +120,8 @@ TOP_K = (1, 5, 10)
 #: The evaluation protocols (see the module docstring): ours, the default, and the lab's.
 PROTOCOLS = ("ours", "lab")
 Protocol = Literal["ours", "lab"]
+#: Lower edges of the strata of Acc-T by the share of a detection box's pixels on other objects.
+COVER_BINS = (0.0, 0.05, 0.15, 0.3)
 #: Recall thresholds of VOC07's 11-point AP, computed as the lab's code does (0.3 is 0.30000000000000004).
 ELEVEN_POINT_RECALLS = np.arange(0.0, 1.1, 0.1)
 
@@ -345,6 +355,9 @@ class GroundTruth:
     grasp_rectangles : (G, 5) float array
     grasp_objects : (G,) int array, row of ``boxes``
     grasp_tasks : (G,) int array, ``taxonomy.TASK_INDEX``
+    mask : (H, W) int array or None
+        Instance mask: 0 background, ``mask_values[i]`` on object ``i``'s visible pixels (Acc-T by crowding).
+    mask_values : (N,) int array or None
     """
 
     boxes: np.ndarray
@@ -352,12 +365,26 @@ class GroundTruth:
     grasp_rectangles: np.ndarray
     grasp_objects: np.ndarray
     grasp_tasks: np.ndarray
+    mask: np.ndarray | None = None
+    mask_values: np.ndarray | None = None
 
     @classmethod
     def from_sample(cls, sample: Any) -> GroundTruth:
-        """From an ``osgd.contract.samples.Sample``."""
+        """From an ``osgd.contract.samples.Sample`` (its mask holds ``object_index + 1``)."""
         return cls(sample.boxes, sample.category_labels, sample.grasp_rectangles, sample.grasp_objects,
-                   sample.grasp_tasks)
+                   sample.grasp_tasks, sample.mask, np.asarray(sample.object_indices, dtype=np.int64) + 1)
+
+    def other_objects_share(self, box: np.ndarray, row: int) -> float:
+        """Share of ``box``'s pixels that show an object other than row ``row`` (NaN without a mask)."""
+        if self.mask is None or self.mask_values is None:
+            return float("nan")
+        height, width = self.mask.shape
+        x1, y1 = (max(int(np.floor(value)), 0) for value in box[:2])
+        x2, y2 = min(int(np.ceil(box[2])), width), min(int(np.ceil(box[3])), height)
+        window = self.mask[y1:y2, x1:x2]
+        if window.size == 0:
+            return float("nan")
+        return float(np.count_nonzero((window != 0) & (window != self.mask_values[row])) / window.size)
 
 
 @dataclass(frozen=True)
@@ -495,6 +522,8 @@ class TableTwoEvaluator:
     _grasp_ground_truth_counts: np.ndarray = field(
         default_factory=lambda: np.zeros(len(CATEGORIES), dtype=np.int64))
     _task_hits: dict[int, list[bool]] = field(default_factory=dict)
+    _roi_cover: list[float] = field(default_factory=list)
+    _roi_pile: list[int] = field(default_factory=list)
     images: int = 0
 
     def __post_init__(self) -> None:
@@ -525,6 +554,9 @@ class TableTwoEvaluator:
             if not of_object.any():
                 continue
             self._judge_tasks(detections, int(detection), truth_grasps[of_object], truth_tasks[of_object])
+            self._roi_cover.append(truth.other_objects_share(np.asarray(detections.boxes)[detection],
+                                                             int(box_match[detection])))
+            self._roi_pile.append(len(truth_categories))
 
     def _protocol_hits(self, detections: Detections, truth: GroundTruth, categories: np.ndarray,
                        truth_categories: np.ndarray,
@@ -591,7 +623,26 @@ class TableTwoEvaluator:
             rois = len(hits)
             result[f"Acc-T top{k}"] = float(np.mean(hits)) if hits else float("nan")
         result.update({"images": self.images, "rois": rois, "AP": per_category, "AP-G": per_category_grasp})
+        result.update(self._crowding_strata())
         return result
+
+    def _crowding_strata(self) -> dict[str, Any]:
+        """Acc-T by other objects' share of the box and by objects in the image (module docstring)."""
+        cover = np.asarray(self._roi_cover, dtype=np.float64)
+        pile = np.asarray(self._roi_pile, dtype=np.int64)
+        hits = {k: np.asarray(self._task_hits.get(k, []), dtype=bool) for k in self.top_k}
+
+        def stratum(chosen: np.ndarray) -> dict[str, Any]:
+            return {"rois": int(chosen.sum()),
+                    **{f"Acc-T top{k}": float(hits[k][chosen].mean()) if chosen.any() else float("nan")
+                       for k in self.top_k}}
+
+        edges = (*COVER_BINS, np.inf)
+        by_cover = {f"{low:.2f}-{high:.2f}" if np.isfinite(high) else f">={low:.2f}":
+                    stratum((cover >= low) & (cover < high)) for low, high in pairwise(edges)}
+        by_pile = {str(count): stratum(pile == count) for count in sorted(set(pile.tolist()))}
+        return {"Acc-T by other objects' share": by_cover if np.isfinite(cover).any() else {},
+                "Acc-T by objects in the image": by_pile}
 
 
 # --------------------------------------------------------------------------- speed

@@ -7,6 +7,9 @@ TOG-CRFs mu and TOG-CRFs with the same options, evaluates each on the test split
   eval.json and eval-lab.json: the evaluation under our protocol and the lab's, ``togcrf.metrics``);
 - ``OUT/table2.txt`` and ``OUT/table2.json``: the table (our protocol); ``OUT/table2-lab.txt`` and
   ``OUT/table2-lab.json``: the lab's;
+- with ``--test-set NAME=PIPELINE`` (repeatable): ``OUT/<model>/eval-sets.json`` and ``OUT/table2-sets.txt`` /
+  ``.json``: every model on the test split of each named pipeline of the data dir (seen tools, novel tools,
+  the authors' models), both protocols, one table (``togcrf.evaluate``, "Test sets");
 - ``OUT/figures/``: figure 5 (omega and mu of TOG-CRFs);
 - ``OUT/prediction.png``: a figure-7-like picture of TOG-CRFs on the first test sample.
 
@@ -33,7 +36,18 @@ from osgd.contract.samples import iter_samples
 from togcrf.checkpoint import load_checkpoint, read_checkpoint
 from togcrf.config import TrainConfig, command_parameters, config_from_command, preset
 from togcrf.engine import resolve_device
-from togcrf.evaluate import EVAL_FILE, command_line, evaluate_checkpoint, format_table, row_name, write_json
+from togcrf.evaluate import (
+    EVAL_FILE,
+    TEST_SETS_FILE,
+    command_line,
+    evaluate_checkpoint,
+    evaluate_test_sets,
+    format_table,
+    format_test_sets,
+    parse_test_sets,
+    row_name,
+    write_json,
+)
 from togcrf.figures import crf_matrices, draw_crf_figures
 from togcrf.metrics import PROTOCOLS
 from togcrf.model import MODEL_NAMES
@@ -80,11 +94,13 @@ def reproduce(
     seed: int = 0,
     speed_images: int = 10,
     progress: Callable[[Path, TrainConfig], Callable[[Any], None] | None] | None = None,
+    test_sets: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """Train and evaluate the models; write the table, figure 5 and a prediction picture.
 
     ``progress(run_dir, scale)``, when given, makes the progress callback of
-    each model's training (``togcrf.train.Progress`` events).
+    each model's training (``togcrf.train.Progress`` events); ``test_sets``
+    (name -> pipeline) adds the table per test set.
 
     Returns
     -------
@@ -93,6 +109,7 @@ def reproduce(
     """
     eval_device = str(resolve_device(device))
     rows: dict[str, list] = {protocol: [] for protocol in PROTOCOLS}
+    set_documents: list[tuple[str, dict[str, Any]]] = []
     for model in models:
         run_dir = out_dir / model
         checkpoint = run_dir / "checkpoint.pt"
@@ -113,6 +130,11 @@ def reproduce(
             write_json(run_dir / eval_file(protocol), {**document, "command": command_line()})
             rows[protocol].append((row_name(document), document["row"]))
             log.info("%s, protocol %s: %s", model, protocol, document["row"])
+        if test_sets:
+            document = evaluate_test_sets(checkpoint, data_dir, test_sets, device=eval_device,
+                                          max_samples=scale.eval_max_samples, speed_images=speed_images)
+            write_json(run_dir / TEST_SETS_FILE, {**document, "command": command_line()})
+            set_documents.append((row_name(document), document))
     for protocol, protocol_rows in rows.items():
         suffix = "" if protocol == "ours" else f"-{protocol}"
         (out_dir / f"table2{suffix}.txt").write_text(format_table(protocol_rows, protocol) + "\n")
@@ -122,6 +144,11 @@ def reproduce(
             "scale": {key: value for key, value in scale.as_dict().items() if key not in _SET_PER_MODEL},
             "rows": [{"name": name, **row} for name, row in protocol_rows]})
     table = format_table(rows["ours"], "ours")
+    if set_documents:
+        table += "\n\n" + format_test_sets(set_documents)
+        (out_dir / "table2-sets.txt").write_text(format_test_sets(set_documents) + "\n")
+        write_json(out_dir / "table2-sets.json", {"command": command_line(), "data": str(data_dir),
+                                                  "test_sets": test_sets, "runs": dict(set_documents)})
     if "tog-crfs" in models:
         model, _ = load_checkpoint(out_dir / "tog-crfs" / "checkpoint.pt")
         draw_crf_figures(crf_matrices(model), out_dir / "figures")
@@ -146,7 +173,7 @@ def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | No
 
 def reproduce_command(data: Path, out: Path, pipeline: str | None = None, scale: str = "auto",
                       models: str = ",".join(TABLE_MODELS), device: str = "auto", seed: int = 0,
-                      speed_images: int = 10, **given: Any) -> None:
+                      speed_images: int = 10, test_set: list[str] | None = None, **given: Any) -> None:
     """Train and evaluate the five models of Table II; print and write the table.
 
     ``--scale`` is the preset every model trains with (paper, gpu, cpu, small; auto: paper with CUDA, else
@@ -154,12 +181,14 @@ def reproduce_command(data: Path, out: Path, pipeline: str | None = None, scale:
     """
     chosen = config_from_command(resolve_scale(scale), given)
     chosen.validate()
+    sets = parse_test_sets(test_set or [])
     selected = tuple(name.strip() for name in models.split(",") if name.strip())
     unknown = [name for name in selected if name not in TABLE_MODELS]
     if unknown or not selected:
         raise ValueError(f"--models {models!r}: expected names among {', '.join(TABLE_MODELS)}")
     result = reproduce(data, out, chosen, pipeline=pipeline, models=selected, device=device, seed=seed,
-                       speed_images=speed_images, progress=lambda run_dir, size: ProgressReport(run_dir, size.epochs))
+                       speed_images=speed_images, progress=lambda run_dir, size: ProgressReport(run_dir, size.epochs),
+                       test_sets=sets)
     typer.echo(result["table"])
     typer.echo(f"written to {out}/table2.txt and table2.json (our protocol), table2-lab.txt and table2-lab.json "
                "(the lab's), figures/, prediction.png")
@@ -182,6 +211,9 @@ def _own_parameters() -> list[inspect.Parameter]:
         option("device", str, "auto", "--device", help="auto, cpu or cuda."),
         option("seed", int, 0, "--seed", help="Training seed."),
         option("speed_images", int, 10, "--speed-images", help="Images timed for the speed column."),
+        option("test_set", list[str] | None, None, "--test-set",
+               help="NAME=PIPELINE: also a table of every model on the test split of this pipeline of the data "
+                    "dir, both protocols (repeat for several; table2-sets.txt)."),
     ]
 
 

@@ -164,13 +164,15 @@ def _build_run(config: TrainConfig) -> tuple[TrainingRun, dict[str, Any], dict[s
     kept = len(dataset) - config.val_samples
     validation_samples = [dataset.read_sample(item) for item in range(kept, len(dataset))]
     dataset.index = dataset.index[:kept]
+    trained_models = sorted(dataset.models_shown())
     sampler = ShardGroupedSampler(dataset, seed=config.seed, rank=context.rank, world=context.world,
                                   batch_size=config.batch_size)
     loader = DataLoader(dataset, batch_size=config.batch_size, sampler=sampler, collate_fn=collate,
                         num_workers=config.workers, pin_memory=device.type == "cuda")
     data_identity = {"data_dir": str(Path(config.data).resolve()), "pipeline": config.pipeline,
                      "split": config.split, "shards": dataset.shard_keys(), "samples": len(dataset),
-                     "validation_samples": [sample.sample_id for sample in validation_samples]}
+                     "validation_samples": [sample.sample_id for sample in validation_samples],
+                     "models": trained_models}
     torch.manual_seed(config.seed)
     model = build_model(config.model, config.backbone, config.model_options).to(device)
     if config.init:

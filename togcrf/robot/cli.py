@@ -15,6 +15,7 @@ from typing import Annotated, Any
 
 import typer
 
+from togcrf.checkpoint import checkpoint_path, read_checkpoint
 from togcrf.evaluate import command_line, write_json
 from togcrf.robot.protocol import TABLE_TASKS, check_fresh, protocol_trials
 from togcrf.robot.report import format_table3, policy_tables, read_logs, reason_counts, timing_summary, write_log
@@ -35,6 +36,15 @@ def _policies(checkpoints: list[Path], baselines: str) -> tuple[str, ...]:
     if not policies:
         raise ValueError("nothing to evaluate: give a CHECKPOINT or --baselines")
     return policies
+
+
+def novel_tools(checkpoints: list[Path], tools: set[str]) -> dict[str, int | None]:
+    """Per checkpoint, how many of ``tools`` (model ids) its training samples never showed (None: not recorded)."""
+    counts: dict[str, int | None] = {}
+    for checkpoint in checkpoints:
+        trained = (read_checkpoint(checkpoint_path(checkpoint)).get("data") or {}).get("models")
+        counts[str(checkpoint)] = None if trained is None else len(tools - set(trained))
+    return counts
 
 
 def _tasks(text: str | None) -> tuple[str, ...]:
@@ -105,12 +115,17 @@ def robot_eval_command(
     trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks)
     spec = RunSpec(config, overrides, data, policies, out, min_score=min_score, min_stability=min_stability,
                    views=views, pictures=pictures, require_clear=not any_pile)
+    novel = novel_tools(list(checkpoints or []), set(world.models))
     typer.echo(f"{len(trials)} trials x {len(policies)} policies, {workers} process(es); writing to {out}")
+    for checkpoint, count in novel.items():
+        said = "not recorded by the checkpoint" if count is None else f"{count} never in its training"
+        typer.echo(f"{len(world.models)} tools in the piles; {checkpoint}: {said}")
 
     rows = run_protocol(spec, trials, workers, world if workers <= 1 else None, print_progress)
     check_fresh(pipeline.params["scenes"].count, (row["pile_seed"] for row in rows), stored_scene_seeds(data))
     text = write_results(out, rows, {"command": command_line(), "config": str(config), "overrides": list(overrides),
                                      "policies": list(policies), "views": views, "trials": len(trials),
+                                     "tools": len(world.models), "novel_tools": novel,
                                      "workers": workers,
                                      "seconds": time.perf_counter() - started})
     typer.echo(text)
