@@ -78,6 +78,8 @@ bench: install
 RECIPE := recipe-pairs96
 OSGD_MODELS_DIR ?= ../shared/osgd-models
 TEST_SETS = seen=$(RECIPE) novel=recipe-novel $(if $(wildcard $(OSGD_MODELS_DIR)),authors=recipe-authors)
+# Absolute, so that make's test above and the pipelines (which read it relative to their own folder) mean one folder.
+table: export OSGD_MODELS_DIR := $(abspath $(OSGD_MODELS_DIR))
 table: install
 	for pipeline in $(foreach set,$(TEST_SETS),$(lastword $(subst =, ,$(set)))); do \
 		$(BIN)/osgd --data-dir $(DATA_DIR) $(if $(WORKERS),--workers $(WORKERS)) run pipelines/$$pipeline.toml || exit 1; done

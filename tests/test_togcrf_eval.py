@@ -254,3 +254,8 @@ def test_eval_on_test_sets_scores_each_set_under_both_protocols_and_counts_novel
         assert {key: plain[key] for key in columns} == {key: seen["metrics"][protocol][key] for key in columns}
     bad = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data), "--test-set", "seen"])
     assert bad.exit_code != 0 and "NAME=PIPELINE" in bad.output
+    for extra, message in ((["--protocol", "lab"], "leave out --pipeline"),
+                           (["--test-set", "gone=nowhere"], "test set 'gone' (pipeline nowhere)")):
+        bad = CliRunner().invoke(app, ["eval", str(checkpoint), "--data", str(data), "--test-set", "seen=synthetic",
+                                       *extra])
+        assert bad.exit_code != 0 and message in bad.output and len(bad.output.strip().splitlines()) == 1

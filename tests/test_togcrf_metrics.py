@@ -186,20 +186,22 @@ def test_table_two_on_a_hand_made_scene() -> None:
 def test_acc_t_by_crowding_uses_the_mask_of_the_other_objects() -> None:
     """The knife's box is a third covered by the screwdriver's pixels; the screwdriver's box not at all."""
     base = _two_object_scene()
+    boxes = np.array([[10, 14, 79, 25], [34, 60, 45, 99]], dtype=float)  # inclusive ends, as the contract's
     mask = np.zeros((120, 100), dtype=np.uint8)
     mask[14:26, 10:80] = 4                      # the knife (object index 3)
     mask[14:18, 10:80] = 7                      # the screwdriver (object index 6) lying over its upper third
     mask[60:100, 34:46] = 7
-    truth = GroundTruth(base.boxes, base.categories, base.grasp_rectangles, base.grasp_objects, base.grasp_tasks,
+    truth = GroundTruth(boxes, base.categories, base.grasp_rectangles, base.grasp_objects, base.grasp_tasks,
                         mask, np.array([4, 7]))
-    assert truth.other_objects_share(base.boxes[0], 0) == pytest.approx(4 / 12)
-    assert truth.other_objects_share(base.boxes[1], 1) == 0.0
-    assert truth.other_objects_share(np.array([500.0, 500.0, 510.0, 510.0]), 0) != truth.other_objects_share(
-        np.array([500.0, 500.0, 510.0, 510.0]), 0)  # outside the image: NaN
+    assert truth.other_objects_share(0) == pytest.approx(4 / 12)
+    assert truth.other_objects_share(1) == 0.0
+    outside = GroundTruth(np.array([[500.0, 500.0, 510.0, 510.0]]), base.categories[:1], base.grasp_rectangles[:0],
+                          base.grasp_objects[:0], base.grasp_tasks[:0], mask, np.array([4]))
+    assert np.isnan(outside.other_objects_share(0))
     knife = _one_hot(["hand over"])              # wrong at the top-1: the candidate is on the 'cut' half
     screw = _one_hot(["screw"])
     detections = Detections(
-        boxes=base.boxes.copy(), categories=base.categories.copy(), scores=np.array([0.9, 0.8]),
+        boxes=boxes + 0.5, categories=base.categories.copy(), scores=np.array([0.9, 0.8]),
         grasps=np.array([[[20, 20, 12, 4, np.pi / 2]], [[40, 80, 12, 4, 0.0]]], dtype=float),
         grasp_stability=np.array([[0.9], [0.9]]), grasp_task_probs=np.stack([knife, screw]))
     evaluator = TableTwoEvaluator(top_k=(1,))
@@ -211,7 +213,8 @@ def test_acc_t_by_crowding_uses_the_mask_of_the_other_objects() -> None:
     assert by_cover["0.05-0.15"]["rois"] == 0
     assert result["Acc-T by objects in the image"] == {"2": {"rois": 2, "Acc-T top1": 0.5}}
     without_mask = TableTwoEvaluator(top_k=(1,))
-    without_mask.add(detections, base)
+    without_mask.add(detections, GroundTruth(boxes, base.categories, base.grasp_rectangles, base.grasp_objects,
+                                             base.grasp_tasks))
     assert without_mask.result()["Acc-T by other objects' share"] == {}
 
 

@@ -289,3 +289,12 @@ def test_robot_eval_counts_the_pile_tools_a_checkpoint_never_trained_on(tmp_path
     tools = {*trained, "procedural/hammer_00", "osgd/hammer_001"}
     assert novel_tools([run], tools) == {str(run): 2}  # a run dir or its checkpoint.pt
     assert novel_tools([run / "checkpoint.pt"], trained) == {str(run / "checkpoint.pt"): 0}
+    # a run started from those weights has seen their tools too
+    write_synthetic_samples(ShardStore(tmp_path / "data"), 4, seed=1, pipeline="other")
+    again = tmp_path / "again"
+    train(TrainConfig(data=str(tmp_path / "data"), out=str(again), pipeline="other", model="tog",
+                      backbone="resnet18", epochs=1, batch_size=2, max_samples=2, augment=False, warmup_steps=1,
+                      device="cpu", amp=False, init=str(run / "checkpoint.pt"),
+                      model_options={"box_head.detections_per_image": 5}))
+    both = set(read_checkpoint(again / "checkpoint.pt")["data"]["models"])
+    assert trained < both and any(model.startswith("other") for model in both)

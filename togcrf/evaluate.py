@@ -37,7 +37,7 @@ import logging
 import math
 import shlex
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from itertools import islice
 from pathlib import Path
 from typing import Annotated, Any
@@ -46,7 +46,7 @@ import numpy as np
 import torch
 import typer
 
-from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary, shard_sample_models
+from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.engine import evaluate_model, resolve_device
 from togcrf.metrics import PROTOCOLS
@@ -176,10 +176,21 @@ def parse_test_sets(items: Sequence[str]) -> dict[str, str]:
     return sets
 
 
-def test_split_tools(shards: Sequence[Any]) -> frozenset[str]:
-    """The model ids the test samples of ``shards`` show (their annotated objects)."""
-    return frozenset(model for shard in shards for _, split, models in shard_sample_models(shard)
-                     if split == "test" for model in models)
+def check_test_sets(data_dir: Path, test_sets: dict[str, str], vocabulary: dict[str, Any]) -> None:
+    """Fail now, naming the set, when a test set's pipeline has no samples or another vocabulary."""
+    for name, pipeline in test_sets.items():
+        try:
+            shards = sample_shards(data_dir, pipeline)
+            check_vocabulary(vocabulary, samples_vocabulary(shards), "the models", f"{data_dir}/samples")
+        except (FileNotFoundError, ValueError) as error:
+            raise ValueError(f"test set {name!r} (pipeline {pipeline}): {error}") from error
+
+
+def _recording_tools(samples: Iterable[Any], tools: set[str]) -> Iterator[Any]:
+    """The samples, adding the model ids of each one's annotated objects to ``tools`` as it passes."""
+    for sample in samples:
+        tools.update(sample.model_ids)
+        yield sample
 
 
 def evaluate_test_sets(
@@ -214,13 +225,13 @@ def evaluate_test_sets(
     trained = (config.get("data") or {}).get("models")
     sets: dict[str, Any] = {}
     speed = None
+    check_test_sets(data_dir, test_sets, config["vocabulary"])
     for name, pipeline in test_sets.items():
-        shards = sample_shards(data_dir, pipeline)
-        check_vocabulary(config["vocabulary"], samples_vocabulary(shards), str(checkpoint), f"{data_dir}/samples")
-        tools = test_split_tools(shards)
-        samples = iter_samples(data_dir, split="test", shards=shards)
+        tools: set[str] = set()
+        samples = iter_samples(data_dir, split="test", shards=sample_shards(data_dir, pipeline))
+        samples = _recording_tools(samples if max_samples is None else islice(samples, max_samples), tools)
         try:
-            result = evaluate_model(model, samples if max_samples is None else islice(samples, max_samples),
+            result = evaluate_model(model, samples,
                                     config.get("image_size"), device=device,
                                     speed_images=speed_images if speed is None else 0, unmatched_task=unmatched_task,
                                     depth_reference=config["depth_reference"], views=views, protocols=PROTOCOLS)
@@ -250,12 +261,12 @@ def format_test_sets(documents: Sequence[tuple[str, dict[str, Any]]]) -> str:
             for run, document in documents for name, entry in document["test_sets"].items()
             for protocol, row in entry["row"].items()]
     lines = [format_table(rows, title="Test set [protocol]")]
-    first = documents[0][1]["test_sets"] if documents else {}
-    for name, entry in first.items():
-        novel = "not recorded by the checkpoint" if entry["novel_tools"] is None else \
-            f"{entry['novel_tools']} never in training"
-        lines.append(f"{name}: pipeline {entry['pipeline']}, {entry['images']} test images, "
-                     f"{entry['tools']} tools ({novel})")
+    for run, document in documents:
+        for name, entry in document["test_sets"].items():
+            novel = "not recorded by the checkpoint" if entry["novel_tools"] is None else \
+                f"{entry['novel_tools']} never in training"
+            lines.append(f"{run + ' / ' if run else ''}{name}: pipeline {entry['pipeline']}, {entry['images']} "
+                         f"test images, {entry['tools']} tools ({novel})")
     return "\n".join(lines)
 
 
@@ -452,6 +463,9 @@ def eval_command(
     With --test-set: Table II per test set (seen tools, novel tools, the authors' models...), both protocols.
     """
     if test_set:
+        if pipeline is not None or split != "test" or protocol != "ours":
+            raise ValueError("--test-set scores the test split of each named pipeline under both protocols; "
+                             "leave out --pipeline, --split and --protocol")
         sets = parse_test_sets(test_set)
         document = evaluate_test_sets(checkpoint, data, sets, device=str(resolve_device(device)),
                                       max_samples=max_samples, speed_images=speed_images,

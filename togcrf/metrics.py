@@ -49,10 +49,12 @@ Acc-T top-k
     of them; one with none is a negative.
 Acc-T by crowding
     Acc-T top-k of the same detections in strata: by the share of the
-    detection box's pixels that show other objects (the sample's instance
-    mask: neither the table nor the matched object; bins
+    matched object's ground-truth box whose pixels show other objects (the
+    sample's instance mask: neither the table nor the object itself; bins
     :data:`COVER_BINS`), where the paper says the CRF acts, and by the
-    number of annotated objects in the image. Only for ground truth that
+    number of annotated objects in the image. The strata are of the
+    objects, not of the detections, so two models are compared on the same
+    objects in each. Only for ground truth that
     carries the mask (:meth:`GroundTruth.from_sample`).
 Speed
     Frames per second of the full model on one image at a time (batch 1),
@@ -120,7 +122,7 @@ TOP_K = (1, 5, 10)
 #: The evaluation protocols (see the module docstring): ours, the default, and the lab's.
 PROTOCOLS = ("ours", "lab")
 Protocol = Literal["ours", "lab"]
-#: Lower edges of the strata of Acc-T by the share of a detection box's pixels on other objects.
+#: Lower edges of the strata of Acc-T by the share of an object's box on other objects.
 COVER_BINS = (0.0, 0.05, 0.15, 0.3)
 #: Recall thresholds of VOC07's 11-point AP, computed as the lab's code does (0.3 is 0.30000000000000004).
 ELEVEN_POINT_RECALLS = np.arange(0.0, 1.1, 0.1)
@@ -374,14 +376,17 @@ class GroundTruth:
         return cls(sample.boxes, sample.category_labels, sample.grasp_rectangles, sample.grasp_objects,
                    sample.grasp_tasks, sample.mask, np.asarray(sample.object_indices, dtype=np.int64) + 1)
 
-    def other_objects_share(self, box: np.ndarray, row: int) -> float:
-        """Share of ``box``'s pixels that show an object other than row ``row`` (NaN without a mask)."""
+    def other_objects_share(self, row: int) -> float:
+        """Share of object ``row``'s box that shows other objects (NaN without a mask).
+
+        The box is the ground truth's (inclusive pixel ends, as the samples stage writes it), so the share
+        of an object is the same whichever model is scored.
+        """
         if self.mask is None or self.mask_values is None:
             return float("nan")
         height, width = self.mask.shape
-        x1, y1 = (max(int(np.floor(value)), 0) for value in box[:2])
-        x2, y2 = min(int(np.ceil(box[2])), width), min(int(np.ceil(box[3])), height)
-        window = self.mask[y1:y2, x1:x2]
+        x1, y1, x2, y2 = (int(np.floor(value)) for value in np.asarray(self.boxes[row], dtype=np.float64))
+        window = self.mask[max(y1, 0):min(y2 + 1, height), max(x1, 0):min(x2 + 1, width)]
         if window.size == 0:
             return float("nan")
         return float(np.count_nonzero((window != 0) & (window != self.mask_values[row])) / window.size)
@@ -554,8 +559,7 @@ class TableTwoEvaluator:
             if not of_object.any():
                 continue
             self._judge_tasks(detections, int(detection), truth_grasps[of_object], truth_tasks[of_object])
-            self._roi_cover.append(truth.other_objects_share(np.asarray(detections.boxes)[detection],
-                                                             int(box_match[detection])))
+            self._roi_cover.append(truth.other_objects_share(int(box_match[detection])))
             self._roi_pile.append(len(truth_categories))
 
     def _protocol_hits(self, detections: Detections, truth: GroundTruth, categories: np.ndarray,

@@ -33,12 +33,13 @@ import torch
 import typer
 
 from osgd.contract.samples import iter_samples
-from togcrf.checkpoint import load_checkpoint, read_checkpoint
+from togcrf.checkpoint import current_vocabulary, load_checkpoint, read_checkpoint
 from togcrf.config import TrainConfig, command_parameters, config_from_command, preset
 from togcrf.engine import resolve_device
 from togcrf.evaluate import (
     EVAL_FILE,
     TEST_SETS_FILE,
+    check_test_sets,
     command_line,
     evaluate_checkpoint,
     evaluate_test_sets,
@@ -108,6 +109,8 @@ def reproduce(
         ``rows``: list of (name, Table II row); ``table``: the text.
     """
     eval_device = str(resolve_device(device))
+    if test_sets:  # before an hour of training, not after
+        check_test_sets(data_dir, test_sets, current_vocabulary())
     rows: dict[str, list] = {protocol: [] for protocol in PROTOCOLS}
     set_documents: list[tuple[str, dict[str, Any]]] = []
     for model in models:

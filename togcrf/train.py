@@ -176,7 +176,9 @@ def _build_run(config: TrainConfig) -> tuple[TrainingRun, dict[str, Any], dict[s
     torch.manual_seed(config.seed)
     model = build_model(config.model, config.backbone, config.model_options).to(device)
     if config.init:
-        _load_initial_weights(model, Path(config.init), device, config.train_only)
+        # The tools the weights have seen: those of the run they came from as well (None: not recorded there).
+        earlier = _load_initial_weights(model, Path(config.init), device, config.train_only)
+        data_identity["models"] = None if earlier is None else sorted({*trained_models, *earlier})
     _freeze_all_but(model, config.train_only)
     stored_config = {**config.as_dict(), "precision": precision_name(config, device)}
     if config.cpu_bf16 and device.type == "cpu" and stored_config["precision"] == "float32":
@@ -193,12 +195,14 @@ def _build_run(config: TrainConfig) -> tuple[TrainingRun, dict[str, Any], dict[s
 
 
 def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.device,
-                          new_layers: list[str] = ()) -> None:
+                          new_layers: list[str] = ()) -> list[str] | None:
     """Copy the model weights of a checkpoint into ``model`` (``--init``); layers under ``new_layers`` may be
-    missing from it (they keep their initialisation)."""
+    missing from it (they keep their initialisation). Returns the model ids its training showed (None: not
+    recorded)."""
     if not path.is_file():
         raise FileNotFoundError(f"--init {path}: no such checkpoint")
-    weights = read_checkpoint(path, device)["model"]
+    checkpoint = read_checkpoint(path, device)
+    weights = checkpoint["model"]
     own = model.state_dict()
     new = [name for name in own if name not in weights and name.startswith(tuple(new_layers))]
     try:
@@ -208,6 +212,7 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
         raise ValueError(f"--init {path}: its layers differ from this model's ({first}); use the same "
                          "--model, --backbone and layer options") from error
     logger.info("initial weights from %s%s", path, f" ({len(new)} new tensors kept as initialised)" if new else "")
+    return (checkpoint.get("data") or {}).get("models")
 
 
 def _freeze_all_but(model: torch.nn.Module, prefixes: list[str]) -> None:

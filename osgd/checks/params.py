@@ -125,19 +125,18 @@ class ChecksStageParams(StageParams):
     hold_still_duration: float = Field(
         1.0 / 30.0, ge=0.0,
         description="the hold ends early once the object's pose in the hand has stayed within "
-        "hold_still_distance and hold_still_rotation for this long, s (tested every 8 steps, so a whole number "
-        "of those; 1/30 s is 8 steps at 1/240 s): a still object's slip stays within bounds, and the judgement "
-        "after the hold is the same; 0 always holds hold_duration",
+        "hold_still_distance and hold_still_rotation for this long, s (tested at the trial's grip-test "
+        "interval, osgd.checks.trial); 0 always holds hold_duration",
     )
     hold_still_distance: float = Field(
         1e-4, ge=0.0,
         description="the object counts as still in the hand while its centre of mass has moved less than this "
-        "relative to the hand, m: 0.1 mm, 200 times less than max_slip_distance",
+        "relative to the hand, m (0.1 mm, far inside max_slip_distance)",
     )
     hold_still_rotation: float = Field(
         0.002, ge=0.0,
-        description="and has turned less than this relative to the hand, rad: 0.1 deg, 175 times less than "
-        "max_slip_rotation",
+        description="and has turned less than this relative to the hand, rad (0.1 deg, far inside "
+        "max_slip_rotation)",
     )
     # -- shake ---------------------------------------------------------------
     shake_distance: float = Field(

@@ -31,11 +31,10 @@ watertight procedural meshes alone. Why scans need their own preset
 own test finds a noisy scan not manifold even when it is watertight, and its
 remesh at 50 cells along the longest side (4 mm on a 20 cm fork) merges the
 tines and fills a wrench's jaws. Why a scan is simplified first: coacd's time
-grows with the faces and the noise (a minute and more for 30,000-150,000
-faces); quadric edge collapse to a few thousand faces takes a fraction of a
-second, smooths the sensor noise away and leaves the hulls as close to the
-true solid or closer (``bench_decomposition.py``, docs/models.md). The
-collapse may leave a few edges shared by four faces; coacd cuts such a
+grows with the faces and the noise; quadric edge collapse to a few thousand
+faces is quick, smooths the sensor noise away and leaves the hulls as close
+to the true solid or closer (``bench_decomposition.py``, docs/models.md).
+The collapse may leave a few edges shared by four faces; coacd cuts such a
 mesh without remeshing as it does a closed one.
 
 Cache: ``<cache_dir>/<key>.npz`` where ``key`` is the sha256 of the mesh's
@@ -224,7 +223,7 @@ def repair_for_decomposition(vertices: np.ndarray, faces: np.ndarray) -> Repaire
 def simplify_for_decomposition(
     vertices: np.ndarray, faces: np.ndarray, max_faces: int
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """At most ``max_faces`` faces of a repaired mesh, by quadric edge collapse (trimesh, fast_simplification).
+    """At most ``max_faces`` faces of a repaired mesh, by quadric edge collapse (fast_simplification).
 
     Parameters
     ----------
@@ -241,8 +240,11 @@ def simplify_for_decomposition(
     """
     if max_faces <= 0 or len(faces) <= max_faces:
         return vertices, faces, {}
-    mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
-    simple = mesh.simplify_quadric_decimation(face_count=max_faces, aggression=SIMPLIFY_AGGRESSION)
+    import fast_simplification  # noqa: PLC0415 - only where a scan is simplified
+
+    collapsed = fast_simplification.simplify(np.asarray(vertices, np.float64), np.asarray(faces, np.int64),
+                                             target_count=max_faces, agg=SIMPLIFY_AGGRESSION)
+    simple = trimesh.Trimesh(*collapsed)  # trimesh's processing: duplicate vertices merged
     description = {"faces_before": len(faces), "faces": len(simple.faces), "method": "quadric edge collapse",
                    "library": f"fast_simplification {_version('fast_simplification')}"}
     return np.asarray(simple.vertices, np.float64), np.asarray(simple.faces, np.int64), description

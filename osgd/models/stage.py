@@ -104,8 +104,8 @@ class ModelsStageParams(StageParams):
         ge=0,
         json_schema_extra={"omit_default": True},
         description="The scan preset: a repaired mesh with more faces is simplified to this many (quadric edge "
-        "collapse) before coacd cuts it, which then takes seconds instead of minutes; 0: never simplified. "
-        "The collision shape only: the stored mesh, its parts and grasps keep every face.",
+        "collapse) before coacd cuts it (coacd's time grows with the faces); 0: never simplified. The collision "
+        "shape only: the stored mesh, its parts and grasps keep every face.",
     )
 
 
@@ -218,8 +218,8 @@ class ModelsStage(Stage):
     def plan(self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]) -> list[WorkItem]:
         assert isinstance(params, ModelsStageParams)
         common: dict[str, Any] = {"seed": int(seed), "decomposition": params.decomposition}
-        # The scan preset's simplification is in the key of exactly the items that get the preset.
-        scan = {"scan_max_faces": params.scan_max_faces}
+        # The scan preset's repair and simplification are in the key of exactly the items that get the preset.
+        scan = {"scan_repair": decomposition.SCAN_REPAIR_VERSION, "scan_max_faces": params.scan_max_faces}
         if params.decomposition == "scan":
             common.update(scan)
         items: list[WorkItem] = []
@@ -265,7 +265,6 @@ class ModelsStage(Stage):
                 payload["unreadable"] = problems
             else:
                 payload.update({"files": _hashes(files, base), "automatic_parts": parts.VERSION,
-                                "scan_repair": decomposition.SCAN_REPAIR_VERSION,
                                 "max_repair_loss": max_repair_loss})
             items.append(ModelWorkItem(f"user/{mesh_path.stem}", payload, source_path=str(base)))
         return items

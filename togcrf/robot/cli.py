@@ -117,9 +117,9 @@ def robot_eval_command(
                    views=views, pictures=pictures, require_clear=not any_pile)
     novel = novel_tools(list(checkpoints or []), set(world.models))
     typer.echo(f"{len(trials)} trials x {len(policies)} policies, {workers} process(es); writing to {out}")
+    typer.echo(f"{len(world.models)} tools in the piles")
     for checkpoint, count in novel.items():
-        said = "not recorded by the checkpoint" if count is None else f"{count} never in its training"
-        typer.echo(f"{len(world.models)} tools in the piles; {checkpoint}: {said}")
+        typer.echo(f"  {checkpoint}: {'not recorded' if count is None else f'{count} never in its training'}")
 
     rows = run_protocol(spec, trials, workers, world if workers <= 1 else None, print_progress)
     check_fresh(pipeline.params["scenes"].count, (row["pile_seed"] for row in rows), stored_scene_seeds(data))

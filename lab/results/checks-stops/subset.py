@@ -1,6 +1,12 @@
+# ruff: noqa
+# The harness as it ran (paths under /tmp/c73, the data of bench_checks.py --data-dir), kept verbatim.
 """Run annotated (+ wrong) grasps of a subset of OSGD models under a config; dump per-trial rows."""
-import sys, time, json, argparse, importlib
+import argparse
+import json
+import sys
+import time
 from pathlib import Path
+
 ap = argparse.ArgumentParser()
 ap.add_argument("--code", default="/work/main")
 ap.add_argument("--every-model", type=int, default=5)
@@ -14,14 +20,18 @@ ap.add_argument("--objdyn", default="{}")
 ap.add_argument("--jitter", type=float, default=0.0)
 a = ap.parse_args()
 sys.path.insert(0, a.code)
-import numpy as np, trimesh
-import osgd.checks.validate as V
+import numpy as np
+import trimesh
+
 import osgd.checks.trial as T
+import osgd.checks.validate as V
+
 assert T.__file__.startswith(a.code), T.__file__
 from osgd.checks.params import ChecksStageParams
 from osgd.checks.stage import trial_seed
 from osgd.gripper import PANDA
 from osgd.models.parts import principal_frame
+
 engine = json.loads(a.engine)
 if engine:
     from osgd.physics import pybullet_module
