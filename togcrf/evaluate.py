@@ -176,14 +176,17 @@ def parse_test_sets(items: Sequence[str]) -> dict[str, str]:
     return sets
 
 
-def check_test_sets(data_dir: Path, test_sets: dict[str, str], vocabulary: dict[str, Any]) -> None:
-    """Fail now, naming the set, when a test set's pipeline has no samples or another vocabulary."""
+def check_test_sets(data_dir: Path, test_sets: dict[str, str], vocabulary: dict[str, Any]) -> dict[str, list]:
+    """Each test set's samples shards; fails now, naming the set, when its pipeline has none or another
+    vocabulary."""
+    shards_of: dict[str, list] = {}
     for name, pipeline in test_sets.items():
         try:
-            shards = sample_shards(data_dir, pipeline)
-            check_vocabulary(vocabulary, samples_vocabulary(shards), "the models", f"{data_dir}/samples")
+            shards_of[name] = sample_shards(data_dir, pipeline)
+            check_vocabulary(vocabulary, samples_vocabulary(shards_of[name]), "the models", f"{data_dir}/samples")
         except (FileNotFoundError, ValueError) as error:
             raise ValueError(f"test set {name!r} (pipeline {pipeline}): {error}") from error
+    return shards_of
 
 
 def _recording_tools(samples: Iterable[Any], tools: set[str]) -> Iterator[Any]:
@@ -225,10 +228,10 @@ def evaluate_test_sets(
     trained = (config.get("data") or {}).get("models")
     sets: dict[str, Any] = {}
     speed = None
-    check_test_sets(data_dir, test_sets, config["vocabulary"])
+    shards_of = check_test_sets(data_dir, test_sets, config["vocabulary"])
     for name, pipeline in test_sets.items():
         tools: set[str] = set()
-        samples = iter_samples(data_dir, split="test", shards=sample_shards(data_dir, pipeline))
+        samples = iter_samples(data_dir, split="test", shards=shards_of[name])
         samples = _recording_tools(samples if max_samples is None else islice(samples, max_samples), tools)
         try:
             result = evaluate_model(model, samples,
