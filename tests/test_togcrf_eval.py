@@ -46,7 +46,7 @@ def test_eval_writes_the_table_row(trained: tuple[Path, Path], tmp_path: Path) -
     assert result.exit_code == 0, result.output
     assert "TOG-CRFs" in result.output and "mAP-G" in result.output
     document = json.loads(out.read_text())  # strict JSON: NaN would have been written as null
-    assert document["model"] == "tog-crfs" and document["split"] == "test"
+    assert document["model"] == "tog-crfs" and document["split"] == "test" and document["seed"] == 0
     assert document["metrics"]["images"] == 2
     for column in ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10"):
         value = document["metrics"][column]

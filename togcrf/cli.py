@@ -19,7 +19,7 @@ import typer
 
 from osgd.contract.process_exit import run_then_exit
 from osgd.contract.shards import ShardError
-from togcrf import curves, evaluate, figures, predict, reproduce, train
+from togcrf import compare, curves, evaluate, figures, predict, reproduce, train
 from togcrf.robot import cli as robot_cli
 
 app = typer.Typer(
@@ -30,7 +30,7 @@ app = typer.Typer(
 )
 
 #: Modules that add commands, in the order they appear in --help.
-COMMAND_MODULES = (train, curves, evaluate, predict, figures, reproduce, robot_cli)
+COMMAND_MODULES = (train, curves, evaluate, compare, predict, figures, reproduce, robot_cli)
 
 #: Errors that a user's input causes: one line without ``--debug``.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError,

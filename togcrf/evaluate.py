@@ -10,7 +10,7 @@ committed as ``MODEL-eval.json``), and ``--mean`` prints each model's mean over 
 the sample standard deviation beneath.
 
 An evaluation JSON (``eval.json`` next to the checkpoint unless ``--out``
-says otherwise) holds ``model``, ``checkpoint``, ``data``, ``pipeline``,
+says otherwise) holds ``model``, ``seed`` (the training seed), ``checkpoint``, ``data``, ``pipeline``,
 ``split``, ``protocol`` (``ours`` or ``lab``, the rules of mAP and mAP-G,
 see :mod:`togcrf.metrics`; a file without it predates the option and is
 ``ours``), ``metrics`` (fractions; see :meth:`TableTwoEvaluator.result`),
@@ -24,7 +24,7 @@ one table (a row per set and protocol). Each set also says how many of its
 test tools (the model ids its test samples show) the checkpoint never saw in
 training (``data.models`` of the checkpoint, the tools of its training
 samples). Its JSON (``eval-sets.json`` by the checkpoint unless ``--out``)
-holds ``checkpoint``, ``data``, ``speed`` and ``test_sets``: for each name,
+holds ``model``, ``seed``, ``checkpoint``, ``data``, ``speed`` and ``test_sets``: for each name,
 ``pipeline``, ``images``, ``tools``, ``novel_tools`` (None for a checkpoint
 that does not record its training tools), and ``metrics`` and ``row`` per
 protocol.
@@ -149,6 +149,7 @@ def evaluate_checkpoint(
         raise ValueError(f"{data_dir}: split {split!r}: {error}") from error
     result = {
         "model": config.get("model", "unknown"),
+        "seed": config.get("seed"),
         "checkpoint": str(checkpoint),
         "data": str(data_dir),
         "pipeline": pipeline,
@@ -247,9 +248,9 @@ def evaluate_test_sets(
                       "metrics": by_protocol,
                       "row": {protocol: table_row({"metrics": metrics, "speed": speed})
                               for protocol, metrics in by_protocol.items()}}
-    return {"model": config.get("model", "unknown"), "checkpoint": str(checkpoint), "data": str(data_dir),
-            "unmatched_task": unmatched_task, "test_time_views": views, "torch_threads": torch.get_num_threads(),
-            "speed": speed, "test_sets": sets}
+    return {"model": config.get("model", "unknown"), "seed": config.get("seed"), "checkpoint": str(checkpoint),
+            "data": str(data_dir), "unmatched_task": unmatched_task, "test_time_views": views,
+            "torch_threads": torch.get_num_threads(), "speed": speed, "test_sets": sets}
 
 
 def format_test_sets(documents: Sequence[tuple[str, dict[str, Any]]]) -> str:
@@ -323,6 +324,18 @@ def run_seed(path: Path) -> int | None:
             continue
         return seed if isinstance(seed, int) else None
     return None
+
+
+def evaluation_seed(path: Path, document: dict[str, Any]) -> int | None:
+    """The training seed of an evaluation: its own ``seed``, else :func:`run_seed` of its path, else ``seed`` of the
+    ``config.json`` in its checkpoint's run dir (None if none of them says)."""
+    seed = document.get("seed")
+    if isinstance(seed, int):
+        return seed
+    seed = run_seed(path)
+    if seed is None and document.get("checkpoint"):
+        seed = run_seed(Path(document["checkpoint"]).parent)
+    return seed
 
 
 def named_rows(models: Sequence[str], rows: Sequence[dict[str, float | None]], seeds: Sequence[int | None],
@@ -511,7 +524,7 @@ def table_command(
     protocol = protocols[0] if len(set(protocols)) == 1 else "mixed"
     models = [row_name(document) for document in documents]
     values = [document.get("row") or table_row(document) for document in documents]
-    seeds = [run_seed(path) for path in run_dirs]
+    seeds = [evaluation_seed(path, document) for path, document in zip(run_dirs, documents, strict=True)]
     rows = named_rows(models, values, seeds, protocols, mixed=protocol == "mixed")
     table: dict[str, Any] = {"columns": list(TABLE_COLUMNS), "protocol": protocol}
     if mean:
