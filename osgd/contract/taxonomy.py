@@ -1,104 +1,279 @@
-"""The one definition of object categories, task labels and object parts.
+"""The one definition of object categories, task labels and object parts: the taxonomy.
 
 Everything that names a category, a task or a part imports it from here:
 the annotate stage, the render stage, the Parquet schemas, the training
 package and the figures.
 
-The task labels and their order are those of Table I of the paper (Yang et
-al., "Task-oriented Grasping in Object Stacking Scenes with CRF-based
-Semantic Model", IROS 2019); the order matters because the network's 12 task
-logits and the CRF's 12 x 12 compatibility matrices are indexed by it.
+The taxonomy is data: ``osgd/contract/table1.toml``, shipped in the package,
+holds the paper's Table I (Yang et al., "Task-oriented Grasping in Object
+Stacking Scenes with CRF-based Semantic Model", IROS 2019) and the sources of
+its figures. :func:`read_taxonomy` reads such a file into a :class:`Taxonomy`
+and checks it, naming every mistake on a line of its own; the constants of
+this module (``TASKS``, ``CATEGORIES``, ``PARTS``...) are those of Table I.
+The order of the tasks matters: the network's 12 task logits and the CRF's
+12 x 12 compatibility matrices are indexed by it; so does the order of the
+categories, the detector's classes.
+
+A taxonomy file holds (units: metres, kg, kg/m^3):
+
+- ``name``: a name for it;
+- ``parts``: the part names of per-face part labels;
+- ``tasks``: ``{name, requirement}`` tables in logit order; the first is
+  ``"no task"`` and one is ``"hand over"`` (the label rules give them to any
+  category, :mod:`osgd.grasps.labels`);
+- ``[[categories]]``: ``name``; ``task``, the task it is the representative
+  object of; the label rule of its grasps (``handle`` and ``working``, lists
+  of parts; ``task_clearance`` and ``hand_over_clearance``, m, default 0.01;
+  ``split``, in (0, 1], default 0.5: see :mod:`osgd.grasps.labels`); and its
+  physical properties (``length_range``, m; ``density``, kg/m^3;
+  ``mass_range``, kg; ``lateral_friction``: :mod:`osgd.models.categories`).
 """
 
 from __future__ import annotations
 
+import tomllib
 from collections.abc import Mapping, Sequence
-from typing import Final
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Final
+
+#: The packaged taxonomy of Table I.
+TABLE1_FILE: Final[str] = "table1.toml"
+
+#: The tasks every taxonomy has: the label of a grasp that serves no task, and handing the tool over.
+NO_TASK: Final[str] = "no task"
+HAND_OVER: Final[str] = "hand over"
+
+#: Defaults of a category's label rule (see :mod:`osgd.grasps.labels`): clearances in metres, split a share.
+RULE_DEFAULTS: Final[dict[str, float]] = {"task_clearance": 0.01, "hand_over_clearance": 0.01, "split": 0.5}
+
+_CATEGORY_FIELDS: Final[frozenset[str]] = frozenset(
+    {"name", "task", "handle", "working", "length_range", "density", "mass_range", "lateral_friction",
+     *RULE_DEFAULTS})
+
+
+@dataclass(frozen=True)
+class CategorySpec:
+    """One category of a taxonomy: its task, the label rule of its grasps, its physical properties.
+
+    Attributes
+    ----------
+    name, task : str
+    handle, working : tuple of str
+        Parts held for the task / left clear for it (:class:`osgd.grasps.labels.LabelRule`).
+    task_clearance, hand_over_clearance : float
+        Metres.
+    split : float
+        Share of the length from the handle end where the task gives way to hand over.
+    length_range : (float, float)
+        Real longest extent, metres.
+    density : float
+        kg/m^3.
+    mass_range : (float, float)
+        kg.
+    lateral_friction : float
+    """
+
+    name: str
+    task: str
+    handle: tuple[str, ...]
+    working: tuple[str, ...]
+    task_clearance: float
+    hand_over_clearance: float
+    split: float
+    length_range: tuple[float, float]
+    density: float
+    mass_range: tuple[float, float]
+    lateral_friction: float
+
+
+@dataclass(frozen=True)
+class Taxonomy:
+    """Categories, tasks and parts, in their order (see the module text)."""
+
+    name: str
+    parts: tuple[str, ...]
+    tasks: tuple[str, ...]
+    requirements: tuple[str, ...]
+    categories: tuple[CategorySpec, ...]
+
+    @property
+    def category_names(self) -> tuple[str, ...]:
+        """The categories' names, in order."""
+        return tuple(category.name for category in self.categories)
+
+    def category(self, name: str) -> CategorySpec:
+        """The category called ``name``.
+
+        Raises
+        ------
+        ValueError
+            If the taxonomy has none of that name.
+        """
+        for category in self.categories:
+            if category.name == name:
+                return category
+        raise ValueError(f"unknown category {name!r}; expected one of {list(self.category_names)}")
+
+
+class TaxonomyError(ValueError):
+    """A taxonomy file with mistakes; the message has one line per mistake, each naming the file."""
+
+
+def _names(entries: Any, where: str, mistakes: list[str]) -> list[str]:
+    """The names of a list of tables (or strings), noting a missing list, a missing name or a duplicate."""
+    if not isinstance(entries, list) or not entries:
+        mistakes.append(f"{where}: expected a non-empty list")
+        return []
+    names = [entry if isinstance(entry, str) else entry.get("name") if isinstance(entry, dict) else None
+             for entry in entries]
+    for index, name in enumerate(names):
+        if not isinstance(name, str) or not name.strip():
+            mistakes.append(f"{where}[{index}]: no name")
+        elif names.index(name) != index:
+            mistakes.append(f"{where}: {name!r} is named twice")
+    return [name for name in names if isinstance(name, str)]
+
+
+def _number_range(value: Any, where: str, mistakes: list[str]) -> tuple[float, float]:
+    if (not isinstance(value, list) or len(value) != 2 or not all(isinstance(v, int | float) for v in value)
+            or not 0 < value[0] <= value[1]):
+        mistakes.append(f"{where}: expected [low, high] with 0 < low <= high, got {value!r}")
+        return (0.0, 0.0)
+    return (float(value[0]), float(value[1]))
+
+
+def _positive(value: Any, where: str, mistakes: list[str], allow_zero: bool = False) -> float:
+    if not isinstance(value, int | float) or isinstance(value, bool) or value < 0 or (value == 0 and not allow_zero):
+        mistakes.append(f"{where}: expected a number {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+        return 0.0
+    return float(value)
+
+
+def _part_list(value: Any, where: str, parts: Sequence[str], mistakes: list[str]) -> tuple[str, ...]:
+    if not isinstance(value, list) or not value or not all(isinstance(part, str) for part in value):
+        mistakes.append(f"{where}: expected a non-empty list of parts")
+        return ()
+    for part in value:
+        if part not in parts:
+            mistakes.append(f"{where}: unknown part {part!r}; parts are {list(parts)}")
+    return tuple(value)
+
+
+def _category(entry: dict[str, Any], where: str, parts: Sequence[str], tasks: Sequence[str],
+              mistakes: list[str]) -> CategorySpec:
+    """One ``[[categories]]`` table, noting each mistake."""
+    for key in sorted(set(entry) - _CATEGORY_FIELDS):
+        mistakes.append(f"{where}: unknown key {key!r}; allowed: {sorted(_CATEGORY_FIELDS)}")
+    task = entry.get("task")
+    if task not in tasks or task in (NO_TASK, HAND_OVER):
+        mistakes.append(f"{where}: task {task!r} is not a task of the taxonomy (other than {NO_TASK!r} and "
+                        f"{HAND_OVER!r})")
+    handle = _part_list(entry.get("handle"), f"{where}.handle", parts, mistakes)
+    working = _part_list(entry.get("working"), f"{where}.working", parts, mistakes)
+    for part in sorted(set(handle) & set(working)):
+        mistakes.append(f"{where}: part {part!r} is both a handle and a working part")
+    rule = {key: _positive(entry.get(key, default), f"{where}.{key}", mistakes, allow_zero=key != "split")
+            for key, default in RULE_DEFAULTS.items()}
+    if rule["split"] > 1:
+        mistakes.append(f"{where}.split: expected a share in (0, 1], got {rule['split']!r}")
+    return CategorySpec(
+        name=str(entry.get("name")), task=str(task), handle=handle, working=working, **rule,
+        length_range=_number_range(entry.get("length_range"), f"{where}.length_range", mistakes),
+        density=_positive(entry.get("density"), f"{where}.density", mistakes),
+        mass_range=_number_range(entry.get("mass_range"), f"{where}.mass_range", mistakes),
+        lateral_friction=_positive(entry.get("lateral_friction"), f"{where}.lateral_friction", mistakes))
+
+
+def parse_taxonomy(document: Mapping[str, Any], source: str) -> Taxonomy:
+    """A taxonomy from its parsed TOML.
+
+    Raises
+    ------
+    TaxonomyError
+        Naming ``source`` and every mistake, a line each: an unknown key or part, a duplicate name, a
+        category without a task or rule, a task that no category serves, a value out of its range.
+    """
+    mistakes: list[str] = []
+    for key in sorted(set(document) - {"name", "parts", "tasks", "categories"}):
+        mistakes.append(f"unknown key {key!r}; allowed: categories, name, parts, tasks")
+    parts = _names(document.get("parts"), "parts", mistakes)
+    tasks = _names(document.get("tasks"), "tasks", mistakes)
+    if tasks and tasks[0] != NO_TASK:
+        mistakes.append(f"tasks: the first task must be {NO_TASK!r}, got {tasks[0]!r}")
+    if tasks and HAND_OVER not in tasks:
+        mistakes.append(f"tasks: {HAND_OVER!r} is missing")
+    entries = document.get("categories")
+    _names(entries, "categories", mistakes)
+    categories = [_category(entry, f"categories[{entry.get('name', index)!r}]", parts, tasks, mistakes)
+                  for index, entry in enumerate(entries if isinstance(entries, list) else [])
+                  if isinstance(entry, dict)]
+    served = {category.task for category in categories}
+    for task in tasks:
+        if task not in (NO_TASK, HAND_OVER) and task not in served:
+            mistakes.append(f"tasks: {task!r} has no rule: no category names it as its task")
+    if mistakes:
+        raise TaxonomyError("\n".join(f"{source}: {mistake}" for mistake in mistakes))
+    requirements = tuple(str(entry.get("requirement", "")) if isinstance(entry, dict) else ""
+                         for entry in document["tasks"])
+    return Taxonomy(name=str(document.get("name", Path(source).stem)), parts=tuple(parts), tasks=tuple(tasks),
+                    requirements=requirements, categories=tuple(categories))
+
+
+def read_taxonomy(path: str | Path) -> Taxonomy:
+    """The taxonomy of a TOML file.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no such file.
+    TaxonomyError
+        If it is not TOML, or has mistakes (:func:`parse_taxonomy`).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such taxonomy file")
+    try:
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as error:
+        raise TaxonomyError(f"{path}: not TOML ({error})") from error
+    return parse_taxonomy(document, str(path))
+
+
+def _table1() -> Taxonomy:
+    text = resources.files(__package__).joinpath(TABLE1_FILE).read_text(encoding="utf-8")
+    return parse_taxonomy(tomllib.loads(text), f"osgd/contract/{TABLE1_FILE}")
+
+
+#: Table I of the paper: the taxonomy of every built-in stage and model.
+TABLE1: Final[Taxonomy] = _table1()
 
 #: The 12 task labels in the order of Table I (11 tasks plus "no task").
-TASKS: Final[tuple[str, ...]] = (
-    "no task",
-    "cut",
-    "screw",
-    "ladle",
-    "fork",
-    "wrench",
-    "hammer",
-    "write",
-    "brush",
-    "shovel",
-    "pinch",
-    "hand over",
-)
+TASKS: Final[tuple[str, ...]] = TABLE1.tasks
 
 #: Task index by name, for encoding labels as integers.
 TASK_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(TASKS)}
 
 #: The 10 object categories, in the order of Table I's representative objects.
-CATEGORIES: Final[tuple[str, ...]] = (
-    "knife",
-    "screwdriver",
-    "spoon",
-    "fork",
-    "wrench",
-    "hammer",
-    "pen",
-    "toothbrush",
-    "spatula",
-    "pliers",
-)
+CATEGORIES: Final[tuple[str, ...]] = TABLE1.category_names
 
 #: Category index by name; the detector's class label is this index + 1
 #: (0 is the background class).
 CATEGORY_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(CATEGORIES)}
 
 #: The task each category is the representative object of (Table I).
-CATEGORY_TASK: Final[dict[str, str]] = {
-    "knife": "cut",
-    "screwdriver": "screw",
-    "spoon": "ladle",
-    "fork": "fork",
-    "wrench": "wrench",
-    "hammer": "hammer",
-    "pen": "write",
-    "toothbrush": "brush",
-    "spatula": "shovel",
-    "pliers": "pinch",
-}
+CATEGORY_TASK: Final[dict[str, str]] = {category.name: category.task for category in TABLE1.categories}
 
 #: The grasp requirement of each task, verbatim from Table I.
-TASK_REQUIREMENT: Final[dict[str, str]] = {
-    "no task": "cannot finish any task",
-    "cut": "avoid the blade",
-    "screw": "avoid the shaft",
-    "ladle": "avoid the bowl",
-    "fork": "avoid the tines",
-    "wrench": "away from the jaws",
-    "hammer": "away from the heavier end",
-    "write": "not close to the tip",
-    "brush": "avoid the parts with bristles",
-    "shovel": "avoid the blade",
-    "pinch": "avoid the jaws",
-    "hand over": "leave the handle clear",
-}
+TASK_REQUIREMENT: Final[dict[str, str]] = dict(zip(TABLE1.tasks, TABLE1.requirements, strict=True))
 
 #: The file name stem of each task in the original OSGD annotation layout
 #: (``<name>/annotations/<stem>.npy``).
 TASK_FILE_STEM: Final[dict[str, str]] = {task: task.replace(" ", "_") for task in TASKS}
 
 #: Object part names used for per-face part labels. Index -1 means unknown.
-PARTS: Final[tuple[str, ...]] = (
-    "handle",
-    "blade",
-    "shaft",
-    "tip",
-    "bowl",
-    "tines",
-    "head",
-    "neck",
-    "jaws",
-    "bristles",
-)
+PARTS: Final[tuple[str, ...]] = TABLE1.parts
 
 #: Part index by name.
 PART_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(PARTS)}

@@ -45,7 +45,7 @@ import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, PARTS, UNKNOWN_PART
+from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, PARTS, RULE_DEFAULTS, TABLE1, UNKNOWN_PART
 from osgd.models.parts import principal_frame
 
 
@@ -62,13 +62,15 @@ class LabelRule(BaseModel):
         "them that a tool has marks its working end (tool_axis)"
     )
     task_clearance: float = Field(
-        0.01, ge=0.0, description="least distance, m, from the pads' region to a working part for the task label"
+        RULE_DEFAULTS["task_clearance"], ge=0.0,
+        description="least distance, m, from the pads' region to a working part for the task label"
     )
     hand_over_clearance: float = Field(
-        0.01, ge=0.0, description="least distance, m, from the pads' region to a handle part for hand over"
+        RULE_DEFAULTS["hand_over_clearance"], ge=0.0,
+        description="least distance, m, from the pads' region to a handle part for hand over"
     )
     split: float = Field(
-        0.5, gt=0.0, le=1.0,
+        RULE_DEFAULTS["split"], gt=0.0, le=1.0,
         description="where along the tool, as a share of its length from the handle end, the category's task "
         "(behind) gives way to hand over (at and beyond), as the paper authors annotated their models; 1: by "
         "the parts alone",
@@ -98,27 +100,14 @@ class LabelRule(BaseModel):
         return parts
 
 
-#: The default rule of each category, following Table I. Clearances: 1 cm
-#: keeps a pad off the working part when the grasp slips a little in the
-#: check stage; the hammer's 3 cm is "away from the heavier end" and the
-#: pen's 2 cm "not close to the tip". ``neck`` (spoon, fork, spatula,
-#: toothbrush) is held with the handle: "avoid the bowl / tines / blade /
-#: bristles" allows it.
+#: The default rule of each category: the taxonomy's (``osgd/contract/table1.toml``, which gives the reasons
+#: for its clearances), following Table I.
 DEFAULT_RULES: dict[str, LabelRule] = {
-    #                 held for the task            held for hand over
-    "knife": LabelRule(handle=("handle",), working=("blade", "tip")),
-    "screwdriver": LabelRule(handle=("handle",), working=("shaft", "tip")),
-    "spoon": LabelRule(handle=("handle", "neck"), working=("bowl",)),
-    "fork": LabelRule(handle=("handle", "neck"), working=("tines",)),
-    "wrench": LabelRule(handle=("handle",), working=("jaws", "head")),
-    "hammer": LabelRule(handle=("handle",), working=("head",), task_clearance=0.03),
-    "pen": LabelRule(handle=("handle", "shaft"), working=("tip",), task_clearance=0.02),
-    "toothbrush": LabelRule(handle=("handle", "neck"), working=("head", "bristles")),
-    "spatula": LabelRule(handle=("handle", "neck"), working=("blade",)),
-    "pliers": LabelRule(handle=("handle",), working=("jaws", "head")),
+    category.name: LabelRule(handle=category.handle, working=category.working,
+                             task_clearance=category.task_clearance,
+                             hand_over_clearance=category.hand_over_clearance, split=category.split)
+    for category in TABLE1.categories
 }
-
-assert set(DEFAULT_RULES) == set(CATEGORIES), "every category needs a label rule"
 
 
 def effective_rules(overrides: Mapping[str, LabelRule]) -> dict[str, LabelRule]:
