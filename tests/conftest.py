@@ -16,7 +16,16 @@ pin_kernels()
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from helpers import OSGD_MODELS  # noqa: E402
+from helpers import OSGD_MODELS, run_golden  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def golden_data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The golden pipeline built once per test session by two worker processes (``helpers.run_golden``): its
+    data dir. Tests only read it."""
+    data_dir = tmp_path_factory.mktemp("golden-build")
+    run_golden(data_dir)
+    return data_dir
 
 
 @pytest.fixture

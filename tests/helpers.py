@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -259,3 +262,19 @@ def silhouette_pixels(obj: Any, intrinsics: Any, pose: Any) -> int:
     mesh_construction.TriangleMesh(scene, world.astype(np.float32), np.asarray(obj.faces, dtype=np.int32))
     hits = scene.run(origins.astype(np.float32), directions.astype(np.float32))
     return int(np.count_nonzero(np.asarray(hits) >= 0))
+
+
+#: The golden pipeline's config.
+GOLDEN_PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "golden.toml"
+
+
+def run_golden(data_dir: Path, environment: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """Build the golden pipeline into ``data_dir`` as ``osgd --workers 2 run`` does (the kernels it pins, hash
+    seed 0, ``environment`` added); fails the test, with the run's output, if the run fails."""
+    result = subprocess.run(
+        [sys.executable, "-m", "osgd", "--data-dir", str(data_dir), "--workers", "2", "run", str(GOLDEN_PIPELINE)],
+        capture_output=True, text=True, env={**os.environ, "PYTHONHASHSEED": "0", **(environment or {})},
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result

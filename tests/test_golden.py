@@ -39,10 +39,8 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import platform
 import shutil
-import subprocess
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -53,6 +51,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from helpers import run_golden
 
 from osgd.contract.encoding import decode_depth, decode_mask
 
@@ -379,13 +378,7 @@ def compare_records(expected: Record, actual: Record, rekeyed: frozenset[str] = 
 
 def build_golden(data_dir: Path, environment: dict[str, str] | None = None) -> Record:
     """Build the golden pipeline into ``data_dir`` with ``python -m osgd`` (the kernels it pins)."""
-    result = subprocess.run(
-        [sys.executable, "-m", "osgd", "--data-dir", str(data_dir), "--workers", "2", "run",
-         str(ROOT / "pipelines" / "golden.toml")],
-        capture_output=True, text=True, env={**os.environ, "PYTHONHASHSEED": "0", **(environment or {})},
-        check=False,
-    )
-    assert result.returncode == 0, result.stdout + result.stderr
+    run_golden(data_dir, environment)
     return Record.load(data_dir / "manifests" / "golden.json", data_dir)
 
 
@@ -409,8 +402,9 @@ def test_the_committed_shards_match_the_committed_manifest() -> None:
             )
 
 
-def test_golden_pipeline_reproduces_the_committed_record(tmp_path: Path) -> None:
-    comparison = _assert_same_dataset(committed_record(), build_golden(tmp_path))
+def test_golden_pipeline_reproduces_the_committed_record(golden_data_dir: Path) -> None:
+    built = Record.load(golden_data_dir / "manifests" / "golden.json", golden_data_dir)
+    comparison = _assert_same_dataset(committed_record(), built)
     if comparison.other_bytes:
         # The same dataset, other bytes: reported, not a failure.
         print("same dataset, other bytes (this processor's kernels round differently):",

@@ -164,12 +164,9 @@ def _osgd(*arguments: str) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def reference(golden_data_dir: Path) -> Path:
     """The golden pipeline built by the process pool (two workers): its data dir."""
-    data_dir = tmp_path_factory.mktemp("process-pool")
-    result = _osgd("--data-dir", str(data_dir), "--workers", "2", "run", str(GOLDEN))
-    assert result.returncode == 0, result.stdout + result.stderr
-    return data_dir
+    return golden_data_dir
 
 
 def _manifest(data_dir: Path) -> str:
@@ -321,6 +318,7 @@ def _run_golden_killing_a_node(cluster: Any, tmp_path: Path, executor: Any) -> t
 
 
 @needs_ray
+@pytest.mark.slow
 def test_a_worker_node_killed_mid_stage_leaves_no_corrupt_shard(
     cluster: Any, reference: Path, tmp_path: Path
 ) -> None:
