@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import json
 import logging
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -27,7 +28,7 @@ from osgd.contract.samples import sample_shards, samples_vocabulary, shard_vocab
 from osgd.contract.shards import file_sha256
 from osgd.contract.taxonomy import VOCABULARY
 from osgd.store import ShardStore, canonical_json
-from togcrf.checkpoint import read_checkpoint, save_checkpoint
+from togcrf.checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
 from togcrf.cli import app
 from togcrf.train import TrainConfig, train
 
@@ -121,14 +122,51 @@ def test_samples_shards_record_their_vocabulary(samples_dir: Path) -> None:
         samples_vocabulary(shards)
 
 
-def test_training_refuses_data_of_another_vocabulary(samples_dir: Path, tmp_path: Path) -> None:
+def a_larger_vocabulary() -> dict[str, list[str]]:
+    """Table I with a new category and a new task, as a user's taxonomy would label its samples."""
+    tasks = list(VOCABULARY["tasks"])
+    tasks.insert(-1, "pour")
+    return {"categories": [*VOCABULARY["categories"], "mug"], "tasks": tasks}
+
+
+def quick_training(samples_dir: Path, run_dir: Path, **changes: object) -> TrainConfig:
+    return TrainConfig(**{"data": str(samples_dir), "out": str(run_dir), "pipeline": "synthetic", "model": "tog-crfs",
+                          "backbone": "resnet18", "epochs": 1, "batch_size": 2, "max_samples": 2, "augment": False,
+                          "warmup_steps": 1, "device": "cpu", "amp": False,
+                          "model_options": {"box_head.detections_per_image": 5, "rpn.post_nms_test": 50},
+                          **changes})
+
+
+def test_the_detector_takes_the_vocabulary_of_its_data(samples_dir: Path, tmp_path: Path) -> None:
+    """Classes, task logits and the CRF's matrices are sized by the data's vocabulary; the checkpoint keeps it,
+    evaluation scores the data under it, and a model of it refuses data of Table I."""
+    table_one = tmp_path / "table1"
+    shutil.copytree(samples_dir, table_one)
+    for path in sample_shards(samples_dir, "synthetic"):
+        write_foreign_vocabulary(path, a_larger_vocabulary())
+    train(quick_training(samples_dir, tmp_path / "run"))
+    model, config = load_checkpoint(tmp_path / "run")
+    assert config["vocabulary"] == a_larger_vocabulary()
+    assert model.vocabulary == {field: tuple(names) for field, names in a_larger_vocabulary().items()}
+    assert model.roi_heads.box_predictor.cls_score.out_features == len(VOCABULARY["categories"]) + 2  # mug, background
+    assert model.grasp_head.task_count == model.crf.omega.shape[0] == model.crf.mu.shape[1] == 13
+    arguments = ["eval", str(tmp_path / "run" / "checkpoint.pt"), "--data", str(samples_dir), "--pipeline",
+                 "synthetic", "--speed-images", "0", "--out", str(tmp_path / "eval.json")]
+    assert CliRunner().invoke(app, arguments).exit_code == 0
+    arguments[3] = str(table_one)
+    result = CliRunner().invoke(app, arguments)
+    assert result.exit_code == 1 and "labelled with another vocabulary" in result.output
+    assert "categories ['knife'" in result.output and "'pliers'] against ['knife'" in result.output
+    assert "'pliers', 'mug']" in result.output  # the data's categories, then the model's
+
+
+def test_training_from_weights_of_another_vocabulary_is_refused(samples_dir: Path, tmp_path: Path) -> None:
+    train(quick_training(samples_dir, tmp_path / "first"))
     for path in sample_shards(samples_dir, "synthetic"):
         write_foreign_vocabulary(path, another_vocabulary())
-    config = TrainConfig(data=str(samples_dir), out=str(tmp_path / "run"), pipeline="synthetic", model="tog",
-                         backbone="resnet18", epochs=1, batch_size=2, max_samples=2, device="cpu", amp=False)
-    expected = r"samples is labelled with another vocabulary than the model of this code .*tasks \['no task', 'screw'"
+    expected = r"the data trained on is labelled with another vocabulary than --init .*first.checkpoint\.pt: tasks"
     with pytest.raises(ValueError, match=expected):
-        train(config)
+        train(quick_training(samples_dir, tmp_path / "second", init=str(tmp_path / "first" / "checkpoint.pt")))
 
 
 def test_a_checkpoint_of_another_vocabulary_is_refused(samples_dir: Path, tmp_path: Path) -> None:

@@ -15,9 +15,10 @@
   ``stopped_by_budget``: the time budget's state;
 - ``data``: what the run trained on (data dir, pipeline, split, shard keys);
 - ``vocabulary``: the categories and task labels the model's outputs are
-  indexed by, and ``schema_version``: the samples schema it read
-  (:mod:`osgd.contract`). Checkpoints without them read as today's
-  vocabulary.
+  indexed by (those of the data it trained on: the heads and the CRF's
+  matrices are sized by them), and ``schema_version``: the samples schema
+  it read (:mod:`osgd.contract`). Checkpoints without them read as Table
+  I's vocabulary.
 
 A model refuses data labelled with another vocabulary
 (:func:`check_vocabulary`).
@@ -134,7 +135,8 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[torch.nn.Mod
     checkpoint = read_checkpoint(path, device)
     config = dict(checkpoint["config"])
     try:
-        model = build_model(config["model"], config["backbone"], stored_options(config.get("model_options")))
+        model = build_model(config["model"], config["backbone"], stored_options(config.get("model_options")),
+                            checkpoint["vocabulary"])
         model.load_state_dict(checkpoint["model"])
     except (ValueError, TypeError, RuntimeError, KeyError) as error:
         lines = [line.strip() for line in str(error).strip().splitlines() if line.strip()] or [type(error).__name__]

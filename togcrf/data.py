@@ -466,7 +466,7 @@ class SamplesDataset(Dataset):
             except Exception as error:
                 raise ValueError(f"{path}: cannot read the samples shard: {error}") from error
             self._cached_shard = shard_number
-        return decode_row(self._cached_rows.slice(row, 1).to_pylist()[0])
+        return decode_row(self._cached_rows.slice(row, 1).to_pylist()[0], self.vocabulary)
 
     def __getitem__(self, item: int) -> tuple[torch.Tensor, dict[str, torch.Tensor], str]:
         sample = self.read_sample(item)

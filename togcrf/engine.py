@@ -296,7 +296,9 @@ def evaluate_model(
     ValueError
         If there are no samples, the protocol is unknown, or the views are not allowed for the model.
     """
-    evaluators = {name: TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task, protocol=name)
+    categories = model.vocabulary["categories"]
+    evaluators = {name: TableTwoEvaluator(top_k=TOP_K, unmatched_task=unmatched_task, protocol=name,
+                                          categories=categories)
                   for name in dict.fromkeys([protocol, *protocols])}
     evaluator = evaluators[protocol]
     kept_images: list[torch.Tensor] = []

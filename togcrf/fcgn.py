@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import torch
 
-from osgd.contract.taxonomy import TASKS
 from togcrf.anchors import ANCHOR_ANGLES, match
 
 
@@ -72,7 +71,7 @@ def image_anchors(rows: int, columns: int, stride: float, anchor_size: float,
 
 
 def image_grasp_targets(targets: list[dict[str, torch.Tensor]], anchors: torch.Tensor,
-                        stride: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                        stride: float, task_count: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Training targets of the candidates of every image: each ground-truth grasp of an image is a target
     of the anchors of its cell within 22.5 degrees.
 
@@ -84,6 +83,8 @@ def image_grasp_targets(targets: list[dict[str, torch.Tensor]], anchors: torch.T
         :func:`image_anchors` of the feature map.
     stride : float
         Pixels per cell.
+    task_count : int
+        Task labels of the vocabulary.
 
     Returns
     -------
@@ -104,7 +105,7 @@ def image_grasp_targets(targets: list[dict[str, torch.Tensor]], anchors: torch.T
         tasks[index, :count] = target["grasp_tasks"]
     # ``match`` takes the cell size from a RoI and a grid; one cell of side ``stride`` is that size.
     cell = anchors.new_tensor([[0.0, 0.0, stride, stride]]).expand(batch, 4)
-    return match(anchors[None].expand(batch, -1, -1), cell, grasps, valid, tasks, len(TASKS), grid=1)
+    return match(anchors[None].expand(batch, -1, -1), cell, grasps, valid, tasks, task_count, grid=1)
 
 
 def box_candidates(rectangles: torch.Tensor, stable: torch.Tensor, task_probs: torch.Tensor, boxes: torch.Tensor,
@@ -146,4 +147,4 @@ def box_candidates(rectangles: torch.Tensor, stable: torch.Tensor, task_probs: t
     empty[..., :2] = ((boxes[:, :2] + boxes[:, 2:]) / 2)[:, None]
     return (torch.where(chosen_inside[..., None], grasps, empty),
             torch.where(chosen_inside, stable[order], 0.0),
-            torch.where(chosen_inside[..., None], task_probs[order], 1.0 / len(TASKS)))
+            torch.where(chosen_inside[..., None], task_probs[order], 1.0 / task_probs.shape[-1]))

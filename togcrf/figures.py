@@ -13,6 +13,7 @@ mu) gets only the other map; a model without a CRF is an error.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated
 
@@ -21,7 +22,6 @@ import torch
 import typer
 from matplotlib.figure import Figure
 
-from osgd.contract.taxonomy import TASKS
 from togcrf.checkpoint import load_checkpoint
 from togcrf.evaluate import write_json
 
@@ -33,7 +33,8 @@ def crf_matrices(model: torch.nn.Module) -> dict[str, np.ndarray]:
 
     Returns
     -------
-    dict of str to (12, 12) float64 array
+    dict of str to (T, T) float64 array
+        T: the model's task labels.
 
     Raises
     ------
@@ -47,31 +48,32 @@ def crf_matrices(model: torch.nn.Module) -> dict[str, np.ndarray]:
     for name in ("omega", "mu"):
         value = getattr(crf, name, None)
         if value is not None:
-            matrices[name] = value.detach().to("cpu", torch.float64).numpy().reshape(len(TASKS), len(TASKS))
+            matrices[name] = value.detach().to("cpu", torch.float64).numpy()
     if not matrices:
         raise ValueError("the model's CRF has neither omega nor mu")
     return matrices
 
 
-def _draw_heat_map(axes: object, matrix: np.ndarray, title: str) -> object:
+def _draw_heat_map(axes: object, matrix: np.ndarray, title: str, tasks: Sequence[str]) -> object:
     image = axes.imshow(matrix, cmap="Blues")
-    axes.set_xticks(range(len(TASKS)), TASKS, rotation=60, ha="right", fontsize=8)
-    axes.set_yticks(range(len(TASKS)), TASKS, fontsize=8)
+    axes.set_xticks(range(len(tasks)), tasks, rotation=60, ha="right", fontsize=8)
+    axes.set_yticks(range(len(tasks)), tasks, fontsize=8)
     axes.set_xlabel("task label $x_j$")
     axes.set_ylabel("task label $x_i$")
     axes.set_title(title)
     return image
 
 
-def draw_crf_figures(matrices: dict[str, np.ndarray], out_dir: Path) -> list[Path]:
-    """Write one heat map per matrix and a side-by-side figure 5; returns the paths."""
+def draw_crf_figures(matrices: dict[str, np.ndarray], out_dir: Path, tasks: Sequence[str]) -> list[Path]:
+    """Write one heat map per matrix and a side-by-side figure 5, axes labelled with ``tasks`` (the model's
+    vocabulary, in logit order); returns the paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     titles = {"omega": r"$\omega(x_i, x_j)$: task compatibility", "mu": r"$\mu(x_i, x_j)$: task region continuity"}
     written = []
     for name, matrix in matrices.items():
         figure = Figure(figsize=(6, 5.4), dpi=110)
         axes = figure.subplots()
-        image = _draw_heat_map(axes, matrix, titles[name])
+        image = _draw_heat_map(axes, matrix, titles[name], tasks)
         figure.colorbar(image, ax=axes, fraction=0.046)
         figure.tight_layout()
         path = out_dir / f"{name}.png"
@@ -80,7 +82,7 @@ def draw_crf_figures(matrices: dict[str, np.ndarray], out_dir: Path) -> list[Pat
     figure = Figure(figsize=(6 * len(matrices), 5.4), dpi=110)
     all_axes = figure.subplots(1, len(matrices), squeeze=False)
     for axes, (name, matrix) in zip(all_axes[0], matrices.items(), strict=True):
-        image = _draw_heat_map(axes, matrix, titles[name])
+        image = _draw_heat_map(axes, matrix, titles[name], tasks)
         figure.colorbar(image, ax=axes, fraction=0.046)
     figure.tight_layout()
     path = out_dir / "figure5.png"
@@ -99,8 +101,9 @@ def figures_command(
         raise FileNotFoundError(f"{checkpoint}: no such checkpoint")
     model, config = load_checkpoint(checkpoint, device="cpu")
     matrices = crf_matrices(model)
-    written = draw_crf_figures(matrices, out)
-    write_json(out / "crf.json", {"model": config.get("model"), "checkpoint": str(checkpoint), "tasks": list(TASKS),
+    tasks = config["vocabulary"]["tasks"]
+    written = draw_crf_figures(matrices, out, tasks)
+    write_json(out / "crf.json", {"model": config.get("model"), "checkpoint": str(checkpoint), "tasks": list(tasks),
                                   **{name: matrix.tolist() for name, matrix in matrices.items()}})
     typer.echo("written: " + ", ".join(str(path) for path in [*written, out / "crf.json"]))
 

@@ -110,7 +110,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from osgd.contract.taxonomy import CATEGORIES, TASKS
+from osgd.contract.taxonomy import CATEGORIES
 from togcrf.geometry import box_iou, grasp_match_matrix
 
 log = logging.getLogger(__name__)
@@ -403,7 +403,7 @@ class Detections:
     scores : (D,) float array
     grasps : (D, K, 5) float array, grasp candidates of each detection
     grasp_stability : (D, K) float array, P(stable)
-    grasp_task_probs : (D, K, 12) float array, P(task | stable)
+    grasp_task_probs : (D, K, T) float array, P(task | stable) over the vocabulary's T tasks
     """
 
     boxes: np.ndarray
@@ -502,6 +502,9 @@ class TableTwoEvaluator:
         See the module docstring (Acc-T).
     protocol : {"ours", "lab"}
         The rules of mAP and mAP-G (module docstring, Protocols).
+    categories : sequence of str
+        The vocabulary's categories, which the detections' and the ground truth's category indices index
+        (default Table I's); AP and AP-G are reported by these names.
 
     Raises
     ------
@@ -519,13 +522,13 @@ class TableTwoEvaluator:
     top_k: Sequence[int] = TOP_K
     unmatched_task: Literal["nearest", "wrong"] = "nearest"
     protocol: Protocol = "ours"
+    categories: Sequence[str] = CATEGORIES
     _scores: list[np.ndarray] = field(default_factory=list)
     _categories: list[np.ndarray] = field(default_factory=list)
     _box_hits: list[np.ndarray] = field(default_factory=list)
     _grasp_hits: list[np.ndarray] = field(default_factory=list)
-    _ground_truth_counts: np.ndarray = field(default_factory=lambda: np.zeros(len(CATEGORIES), dtype=np.int64))
-    _grasp_ground_truth_counts: np.ndarray = field(
-        default_factory=lambda: np.zeros(len(CATEGORIES), dtype=np.int64))
+    _ground_truth_counts: np.ndarray = field(init=False)
+    _grasp_ground_truth_counts: np.ndarray = field(init=False)
     _task_hits: dict[int, list[bool]] = field(default_factory=dict)
     _roi_cover: list[float] = field(default_factory=list)
     _roi_pile: list[int] = field(default_factory=list)
@@ -534,6 +537,8 @@ class TableTwoEvaluator:
     def __post_init__(self) -> None:
         if self.protocol not in PROTOCOLS:
             raise ValueError(f"unknown protocol {self.protocol!r}: expected one of {', '.join(PROTOCOLS)}")
+        self._ground_truth_counts = np.zeros(len(self.categories), dtype=np.int64)
+        self._grasp_ground_truth_counts = np.zeros(len(self.categories), dtype=np.int64)
 
     def add(self, detections: Detections, truth: GroundTruth) -> None:
         """Add one image's detections and ground truth."""
@@ -584,8 +589,8 @@ class TableTwoEvaluator:
         stability = np.asarray(detections.grasp_stability[detection], dtype=np.float64).reshape(-1)
         order = np.argsort(-stability, kind="stable")[:max(self.top_k)]
         candidates = np.asarray(detections.grasps[detection], dtype=np.float64).reshape(-1, 5)[order]
-        predicted = np.argmax(np.asarray(detections.grasp_task_probs[detection]).reshape(-1, len(TASKS))[order],
-                              axis=-1)
+        task_probs = np.asarray(detections.grasp_task_probs[detection])
+        predicted = np.argmax(task_probs.reshape(-1, task_probs.shape[-1])[order], axis=-1)
         allowed = right_tasks(candidates, object_grasps, object_tasks, self.unmatched_task)
         correct = np.array([int(task) in right for task, right in zip(predicted, allowed, strict=True)], dtype=bool)
         for k in self.top_k:
@@ -609,7 +614,7 @@ class TableTwoEvaluator:
         grasp_hits = np.concatenate(self._grasp_hits) if self._grasp_hits else np.zeros(0, dtype=bool)
         box_ap = average_precision_11_point if self.protocol == "lab" else average_precision
         per_category, per_category_grasp = {}, {}
-        for index, name in enumerate(CATEGORIES):
+        for index, name in enumerate(self.categories):
             count = int(self._ground_truth_counts[index])
             if count == 0:
                 continue

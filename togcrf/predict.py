@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -31,7 +32,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
 from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
-from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_COLOURS, TASK_INDEX, TASKS
+from osgd.contract.taxonomy import VOCABULARY, task_palette
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.data import depth_to_tensor
 from togcrf.engine import run_model
@@ -136,7 +137,8 @@ def keep_confident(detections: Detections, min_score: float) -> Detections:
                       detections.grasps[keep], detections.grasp_stability[keep], detections.grasp_task_probs[keep])
 
 
-def prediction_document(detections: Detections, grasps_per_object: int | None = None) -> dict[str, Any]:
+def prediction_document(detections: Detections, grasps_per_object: int | None = None,
+                        vocabulary: Mapping[str, Sequence[str]] = VOCABULARY) -> dict[str, Any]:
     """Detections as a JSON-ready document.
 
     Parameters
@@ -151,8 +153,10 @@ def prediction_document(detections: Detections, grasps_per_object: int | None = 
         ``tasks`` (the order of every ``task_probs``) and ``objects``: list of
         ``box`` [x1, y1, x2, y2] px, ``category``, ``score`` and ``grasps``:
         list of ``rectangle`` [x, y, h, w, theta] (px, rad), ``stability``,
-        ``task`` (most likely) and ``task_probs`` (12, P(task | stable)).
+        ``task`` (most likely) and ``task_probs`` (P(task | stable) for each task of the model's
+        ``vocabulary``).
     """
+    tasks, categories = vocabulary["tasks"], vocabulary["categories"]
     objects = []
     for index in range(len(detections.scores)):
         stability = detections.grasp_stability[index]
@@ -160,31 +164,34 @@ def prediction_document(detections: Detections, grasps_per_object: int | None = 
         grasps = [{
             "rectangle": [float(value) for value in detections.grasps[index, candidate]],
             "stability": float(stability[candidate]),
-            "task": TASKS[int(np.argmax(detections.grasp_task_probs[index, candidate]))],
+            "task": tasks[int(np.argmax(detections.grasp_task_probs[index, candidate]))],
             "task_probs": [float(value) for value in detections.grasp_task_probs[index, candidate]],
         } for candidate in order]
         objects.append({
             "box": [float(value) for value in detections.boxes[index]],
-            "category": CATEGORIES[int(detections.categories[index])],
+            "category": categories[int(detections.categories[index])],
             "score": float(detections.scores[index]),
             "grasps": grasps,
         })
-    return {"tasks": list(TASKS), "objects": objects}
+    return {"tasks": list(tasks), "objects": objects}
 
 
 def best_grasp_for_task(detections: Detections, task: str, category: str | None = None,
-                        min_stability: float = 0.5) -> dict[str, Any]:
+                        min_stability: float = 0.5, vocabulary: Mapping[str, Sequence[str]] = VOCABULARY,
+                        ) -> dict[str, Any]:
     """The grasp for a task: the largest P(task | stable) over all detected objects.
 
     Parameters
     ----------
     detections : Detections
     task : str
-        A task of ``taxonomy.TASKS``.
+        A task of the model's ``vocabulary``.
     category : str, optional
         Only objects of this category; required for "no task" and "hand over".
     min_stability : float
         Candidates less stable than this do not compete (unless none is stable).
+    vocabulary : mapping
+        The model's categories and tasks (default Table I's).
 
     Returns
     -------
@@ -198,19 +205,21 @@ def best_grasp_for_task(detections: Detections, task: str, category: str | None 
         For an unknown task or category, a missing category where one is
         required, or when no object (of the category) was detected.
     """
-    if task not in TASK_INDEX:
-        raise ValueError(f"unknown task {task!r}; expected one of {list(TASKS)}")
-    if category is not None and category not in CATEGORY_INDEX:
-        raise ValueError(f"unknown category {category!r}; expected one of {list(CATEGORIES)}")
+    tasks, categories = list(vocabulary["tasks"]), list(vocabulary["categories"])
+    if task not in tasks:
+        raise ValueError(f"unknown task {task!r}; expected one of {tasks}")
+    if category is not None and category not in categories:
+        raise ValueError(f"unknown category {category!r}; expected one of {categories}")
     if task in TASKS_NEEDING_CATEGORY and category is None:
         raise ValueError(f"task {task!r} needs --category: nearly every object affords it (paper, Section V-C)")
     objects = np.arange(len(detections.scores))
     if category is not None:
-        objects = objects[detections.categories == CATEGORY_INDEX[category]]
+        objects = objects[detections.categories == categories.index(category)]
     candidates = [(obj, k) for obj in objects for k in range(detections.grasps.shape[1])]
     if not candidates:
         raise ValueError(f"no {'object' if category is None else category} with grasp candidates detected")
-    probability = np.array([detections.grasp_task_probs[obj, k, TASK_INDEX[task]] for obj, k in candidates])
+    task_index = tasks.index(task)
+    probability = np.array([detections.grasp_task_probs[obj, k, task_index] for obj, k in candidates])
     stability = np.array([detections.grasp_stability[obj, k] for obj, k in candidates])
     stable = stability >= min_stability
     if stable.any():
@@ -219,32 +228,35 @@ def best_grasp_for_task(detections: Detections, task: str, category: str | None 
     return {
         "task": task,
         "object": int(obj),
-        "category": CATEGORIES[int(detections.categories[obj])],
+        "category": categories[int(detections.categories[obj])],
         "rectangle": [float(value) for value in detections.grasps[obj, k]],
         "stability": float(detections.grasp_stability[obj, k]),
-        "task_probability": float(detections.grasp_task_probs[obj, k, TASK_INDEX[task]]),
+        "task_probability": float(detections.grasp_task_probs[obj, k, task_index]),
     }
 
 
-def task_colours() -> np.ndarray:
-    """One RGB colour (floats in [0, 1]) per task, in ``taxonomy.TASKS`` order: (12, 3).
+def task_colours(tasks: Sequence[str] = VOCABULARY["tasks"]) -> np.ndarray:
+    """One RGB colour (floats in [0, 1]) per task, in the order of ``tasks``: (T, 3).
 
-    The rows of ``taxonomy.TASK_COLOURS``, the palette every picture colours tasks with.
+    The rows of ``taxonomy.task_palette``, the palette every picture colours tasks with.
     """
-    return np.array([TASK_COLOURS[task] for task in TASKS], dtype=np.float64)
+    palette = task_palette(tasks)
+    return np.array([palette[task] for task in tasks], dtype=np.float64)
 
 
 def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasps_per_object: int = DRAWN_GRASPS,
-                    chosen: dict[str, Any] | None = None) -> None:
+                    chosen: dict[str, Any] | None = None, vocabulary: Mapping[str, Sequence[str]] = VOCABULARY,
+                    ) -> None:
     """Draw detections like the paper's figure 7 and save a PNG.
 
     The depth image is the grey background; every box carries its category
     and score; the ``grasps_per_object`` most stable candidates of each box
     are drawn as rectangles in the colour of their most likely task, the
     finger sides thick. A ``chosen`` grasp (from :func:`best_grasp_for_task`)
-    is drawn on top, larger and outlined.
+    is drawn on top, larger and outlined. Names and colours are those of the model's ``vocabulary``.
     """
-    colours = task_colours()
+    tasks, categories = list(vocabulary["tasks"]), vocabulary["categories"]
+    colours = task_colours(tasks)
     height, width = depth.shape
     figure = Figure(figsize=(8, 8 * height / width + 0.8), dpi=100)
     axes = figure.subplots()
@@ -266,7 +278,7 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     for index in range(len(detections.scores)):
         x1, y1, x2, y2 = detections.boxes[index]
         axes.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor="yellow", linewidth=1.2))
-        axes.text(x1, y1 - 2, f"{CATEGORIES[int(detections.categories[index])]} {detections.scores[index]:.2f}",
+        axes.text(x1, y1 - 2, f"{categories[int(detections.categories[index])]} {detections.scores[index]:.2f}",
                   color="black", fontsize=8, backgroundcolor="yellow")
         order = np.argsort(-detections.grasp_stability[index], kind="stable")[:grasps_per_object]
         for candidate in order[::-1]:
@@ -274,7 +286,7 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
             used_tasks.add(task)
             draw_rectangle(detections.grasps[index, candidate], colours[task], 1.2, 3.0)
     if chosen is not None:
-        task = TASK_INDEX[chosen["task"]]
+        task = tasks.index(chosen["task"])
         used_tasks.add(task)
         draw_rectangle(np.asarray(chosen["rectangle"]), np.array([0.0, 0.0, 0.0]), 4.0, 7.0)
         draw_rectangle(np.asarray(chosen["rectangle"]), colours[task], 2.0, 4.0)
@@ -288,7 +300,7 @@ def draw_prediction(depth: np.ndarray, detections: Detections, path: Path, grasp
     axes.set_xlim(0, width)
     axes.set_ylim(height, 0)
     axes.set_axis_off()
-    handles = [Line2D([0], [0], color=colours[task], linewidth=3, label=TASKS[task]) for task in sorted(used_tasks)]
+    handles = [Line2D([0], [0], color=colours[task], linewidth=3, label=tasks[task]) for task in sorted(used_tasks)]
     if handles:
         axes.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=min(6, len(handles)),
                     fontsize=8, frameon=True, facecolor="#444444", edgecolor="none", labelcolor="white")
@@ -326,17 +338,18 @@ def predict_command(
                          str(checkpoint), f"{data}/samples")
     detections = keep_confident(predict_depth(model, depth, config.get("image_size"), device,
                                                  config["depth_reference"], views), min_score)
-    chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability)
+    vocabulary = config["vocabulary"]
+    chosen = None if task is None else best_grasp_for_task(detections, task, category, min_stability, vocabulary)
     document = {"input": source, "model": config.get("model"), "checkpoint": str(checkpoint),
                 "height": int(depth.shape[0]), "width": int(depth.shape[1]), "min_score": min_score,
                 "test_time_views": views,
-                **prediction_document(detections, grasps_per_object)}
+                **prediction_document(detections, grasps_per_object, vocabulary)}
     if sample is not None:
         document["sample_id"] = sample.sample_id
     if chosen is not None:
         document["chosen"] = chosen
     if image is not None:
-        draw_prediction(depth, detections, image, chosen=chosen)
+        draw_prediction(depth, detections, image, chosen=chosen, vocabulary=vocabulary)
     if out is not None:
         write_json(out, document)
         typer.echo(f"{len(document['objects'])} objects; written to {out}" + (f" and {image}" if image else ""))

@@ -32,8 +32,8 @@ from typing import Annotated, Any
 import torch
 import typer
 
-from osgd.contract.samples import iter_samples
-from togcrf.checkpoint import current_vocabulary, load_checkpoint, read_checkpoint
+from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
+from togcrf.checkpoint import load_checkpoint, read_checkpoint
 from togcrf.config import TrainConfig, command_parameters, config_from_command, preset
 from togcrf.engine import resolve_device
 from togcrf.evaluate import (
@@ -110,7 +110,7 @@ def reproduce(
     """
     eval_device = str(resolve_device(device))
     if test_sets:  # before an hour of training, not after
-        check_test_sets(data_dir, test_sets, current_vocabulary())
+        check_test_sets(data_dir, test_sets, samples_vocabulary(sample_shards(data_dir, pipeline)))
     rows: dict[str, list] = {protocol: [] for protocol in PROTOCOLS}
     set_documents: list[tuple[str, dict[str, Any]]] = []
     for model in models:
@@ -154,7 +154,7 @@ def reproduce(
                                                   "test_sets": test_sets, "runs": dict(set_documents)})
     if "tog-crfs" in models:
         model, _ = load_checkpoint(out_dir / "tog-crfs" / "checkpoint.pt")
-        draw_crf_figures(crf_matrices(model), out_dir / "figures")
+        draw_crf_figures(crf_matrices(model), out_dir / "figures", model.vocabulary["tasks"])
         _draw_first_test_sample(out_dir / "tog-crfs" / "checkpoint.pt", data_dir, pipeline, out_dir / "prediction.png")
     return {"rows": rows["ours"], "table": table}
 
@@ -171,7 +171,7 @@ def _draw_first_test_sample(checkpoint: Path, data_dir: Path, pipeline: str | No
         return
     detections = keep_confident(predict_depth(model, sample.depth, config.get("image_size"),
                                                  depth_reference=config["depth_reference"]), 0.5)
-    draw_prediction(sample.depth, detections, path)
+    draw_prediction(sample.depth, detections, path, vocabulary=model.vocabulary)
 
 
 def reproduce_command(data: Path, out: Path, pipeline: str | None = None, scale: str = "auto",

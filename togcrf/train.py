@@ -51,7 +51,6 @@ from togcrf import distributed
 from togcrf.checkpoint import (
     CHECKPOINT_FILE,
     check_vocabulary,
-    current_vocabulary,
     one_line_of,
     read_checkpoint,
     save_checkpoint,
@@ -151,8 +150,6 @@ def _build_run(config: TrainConfig) -> tuple[TrainingRun, dict[str, Any], dict[s
                              image_size=config.image_size, augment=config.augment, seed=config.seed,
                              max_samples=config.max_samples, scale_jitter=config.scale_jitter,
                              depth_reference=config.depth_reference)
-    check_vocabulary(current_vocabulary(), dataset.vocabulary, f"the model of this code (--model {config.model})",
-                     f"{config.data}/samples")
     leaked = dataset.models_shown(held_out_models(config.data, config.pipeline))
     if leaked:
         raise ValueError(f"{config.data}: the manifest holds models out for test, but the {config.split!r} samples "
@@ -174,7 +171,7 @@ def _build_run(config: TrainConfig) -> tuple[TrainingRun, dict[str, Any], dict[s
                      "validation_samples": [sample.sample_id for sample in validation_samples],
                      "models": trained_models}
     torch.manual_seed(config.seed)
-    model = build_model(config.model, config.backbone, config.model_options).to(device)
+    model = build_model(config.model, config.backbone, config.model_options, dataset.vocabulary).to(device)
     if config.init:
         # The tools the weights have seen: those of the run they came from as well (None: not recorded there).
         earlier = _load_initial_weights(model, Path(config.init), device, config.train_only)
@@ -202,6 +199,7 @@ def _load_initial_weights(model: torch.nn.Module, path: Path, device: torch.devi
     if not path.is_file():
         raise FileNotFoundError(f"--init {path}: no such checkpoint")
     checkpoint = read_checkpoint(path, device)
+    check_vocabulary(checkpoint["vocabulary"], model.vocabulary, f"--init {path}", "the data trained on")
     weights = checkpoint["model"]
     own = model.state_dict()
     new = [name for name in own if name not in weights and name.startswith(tuple(new_layers))]
@@ -306,6 +304,7 @@ def _resume(run: TrainingRun, checkpoint_path: Path, stored_config: dict[str, An
         if saved.get(key) != stored_config.get(key):
             raise ValueError(f"{checkpoint_path}: cannot resume, {key} was {saved.get(key)!r}, "
                              f"now {stored_config.get(key)!r}")
+    check_vocabulary(checkpoint["vocabulary"], run.dataset.vocabulary, str(checkpoint_path), "the data trained on")
     state = _training_state(checkpoint_path, checkpoint, run.device)
     run.model.load_state_dict(checkpoint["model"])
     run.optimizer.load_state_dict(_with_this_implementation(state["optimizer"], run.optimizer))

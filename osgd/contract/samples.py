@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 from osgd.contract.encoding import decode_depth, decode_mask
 from osgd.contract.files import Location
 from osgd.contract.shards import ShardError, ShardReader
-from osgd.contract.taxonomy import CATEGORY_INDEX, TASK_INDEX, VOCABULARY, vocabulary_difference
+from osgd.contract.taxonomy import VOCABULARY, vocabulary_difference
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,8 @@ class Sample:
         Index of each annotated object in its scene.
     categories : tuple of str
     category_labels : (N,) int64
-        ``taxonomy.CATEGORY_INDEX``, no background offset.
+        Index into the shard's vocabulary's ``categories`` (Table I: ``taxonomy.CATEGORY_INDEX``), no
+        background offset.
     boxes : (N, 4) float32
         ``x1, y1, x2, y2`` pixels, tight around the visible pixels.
     visible_fraction : (N,) float32
@@ -67,7 +68,7 @@ class Sample:
     grasp_objects : (G,) int64
         Row of ``boxes`` each grasp belongs to.
     grasp_tasks : (G,) int64
-        ``taxonomy.TASK_INDEX``.
+        Index into the shard's vocabulary's ``tasks`` (Table I: ``taxonomy.TASK_INDEX``).
     grasp_positions : (G, 3) float64
         3-D grasp centres in the camera frame, metres.
     grasp_quaternions : (G, 4) float64
@@ -98,14 +99,22 @@ class Sample:
     model_ids: tuple[str, ...] = ()
 
 
-def decode_row(row: dict[str, Any]) -> Sample:
+def decode_row(row: dict[str, Any], vocabulary: Mapping[str, Sequence[str]] | None = None) -> Sample:
     """Decode one row of the ``samples`` table (as from ``Table.to_pylist()``).
+
+    Parameters
+    ----------
+    row : dict
+    vocabulary : mapping, optional
+        The vocabulary of its shard (:func:`shard_vocabulary`), which the labels index; default Table I's.
 
     Raises
     ------
     ValueError
-        If a grasp names an object that is not among the sample's objects.
+        If a grasp names an object that is not among the sample's objects, or a category or task is not in
+        the vocabulary.
     """
+    vocabulary = VOCABULARY if vocabulary is None else vocabulary
     objects = row["objects"]
     object_indices = np.array([obj["object_index"] for obj in objects], dtype=np.int64)
     row_of_object = {int(index): position for position, index in enumerate(object_indices)}
@@ -126,12 +135,12 @@ def decode_row(row: dict[str, Any]) -> Sample:
         camera_quaternion=np.asarray(row["camera_quaternion"], dtype=np.float64),
         object_indices=object_indices,
         categories=tuple(obj["category"] for obj in objects),
-        category_labels=np.array([CATEGORY_INDEX[obj["category"]] for obj in objects], dtype=np.int64),
+        category_labels=_labels(row, "categories", [obj["category"] for obj in objects], vocabulary),
         boxes=np.array([obj["box"] for obj in objects], dtype=np.float32).reshape(-1, 4),
         visible_fraction=np.array([obj["visible_fraction"] for obj in objects], dtype=np.float32),
         grasp_rectangles=np.array([grasp["rectangle"] for grasp in grasps], dtype=np.float32).reshape(-1, 5),
         grasp_objects=grasp_objects,
-        grasp_tasks=np.array([TASK_INDEX[grasp["task"]] for grasp in grasps], dtype=np.int64),
+        grasp_tasks=_labels(row, "tasks", [grasp["task"] for grasp in grasps], vocabulary),
         grasp_positions=np.array([grasp["position"] for grasp in grasps], dtype=np.float64).reshape(-1, 3),
         grasp_quaternions=np.array([grasp["quaternion"] for grasp in grasps], dtype=np.float64).reshape(-1, 4),
         model_ids=tuple(str(obj["model_id"]) for obj in objects),
@@ -289,6 +298,21 @@ def samples_vocabulary(shards: Sequence[Location]) -> dict[str, list[str]]:
     return first
 
 
+#: What one entry of each vocabulary field is called, for messages.
+_FIELD_ENTRY = {"categories": "category", "tasks": "task"}
+
+
+def _labels(row: dict[str, Any], field: str, names: list[str], vocabulary: Mapping[str, Sequence[str]]
+            ) -> np.ndarray:
+    """The indices of ``names`` in the vocabulary's ``field`` (int64)."""
+    index = {name: position for position, name in enumerate(vocabulary[field])}
+    try:
+        return np.array([index[name] for name in names], dtype=np.int64)
+    except KeyError as error:
+        raise ValueError(f"sample {row['sample_id']}: {_FIELD_ENTRY[field]} {error} is not in its shard's "
+                         f"vocabulary {list(vocabulary[field])}") from error
+
+
 def iter_samples(
     data_dir: str | Path,
     pipeline: str | None = None,
@@ -308,8 +332,9 @@ def iter_samples(
         Read these files instead of looking them up.
     """
     for path in shards if shards is not None else sample_shards(data_dir, pipeline):
+        vocabulary = shard_vocabulary(path)
         parquet = pq.ParquetFile(path)
         for batch in parquet.iter_batches(batch_size=16):
             for row in batch.to_pylist():
                 if split is None or row["split"] == split:
-                    yield decode_row(row)
+                    yield decode_row(row, vocabulary)

@@ -325,21 +325,38 @@ def vocabulary_difference(recorded: Mapping[str, Sequence[str]], expected: Mappi
     return None
 
 
-#: One colour per task, (r, g, b) floats in [0, 1]: the one palette of every picture that colours by
-#: task. They are matplotlib's ``tab20`` entries, written out so that the contract imports no
-#: matplotlib: task ``i`` (Table I order) takes entry ``(2 * i) % 20 + (i >= 10)``, the dark shade of
-#: the first ten pairs, then the light shade of the first two.
-TASK_COLOURS: Final[dict[str, tuple[float, float, float]]] = {
-    "no task": (0.12156862745098039, 0.4666666666666667, 0.7058823529411765),  # tab20[0]
-    "cut": (1.0, 0.4980392156862745, 0.054901960784313725),  # tab20[2]
-    "screw": (0.17254901960784313, 0.6274509803921569, 0.17254901960784313),  # tab20[4]
-    "ladle": (0.8392156862745098, 0.15294117647058825, 0.1568627450980392),  # tab20[6]
-    "fork": (0.5803921568627451, 0.403921568627451, 0.7411764705882353),  # tab20[8]
-    "wrench": (0.5490196078431373, 0.33725490196078434, 0.29411764705882354),  # tab20[10]
-    "hammer": (0.8901960784313725, 0.4666666666666667, 0.7607843137254902),  # tab20[12]
-    "write": (0.4980392156862745, 0.4980392156862745, 0.4980392156862745),  # tab20[14]
-    "brush": (0.7372549019607844, 0.7411764705882353, 0.13333333333333333),  # tab20[16]
-    "shovel": (0.09019607843137255, 0.7450980392156863, 0.8117647058823529),  # tab20[18]
-    "pinch": (0.6823529411764706, 0.7803921568627451, 0.9098039215686274),  # tab20[1]
-    "hand over": (1.0, 0.7333333333333333, 0.47058823529411764),  # tab20[3]
-}
+#: matplotlib's ``tab20`` colours, (r, g, b) floats in [0, 1], written out so that the contract imports no
+#: matplotlib: the pairs of a dark and a light shade of ten hues.
+TAB20: Final[tuple[tuple[float, float, float], ...]] = (
+    (0.12156862745098039, 0.4666666666666667, 0.7058823529411765),  # tab20[0]
+    (0.6823529411764706, 0.7803921568627451, 0.9098039215686274),  # tab20[1]
+    (1.0, 0.4980392156862745, 0.054901960784313725),  # tab20[2]
+    (1.0, 0.7333333333333333, 0.47058823529411764),  # tab20[3]
+    (0.17254901960784313, 0.6274509803921569, 0.17254901960784313),  # tab20[4]
+    (0.596078431372549, 0.8745098039215686, 0.5411764705882353),  # tab20[5]
+    (0.8392156862745098, 0.15294117647058825, 0.1568627450980392),  # tab20[6]
+    (1.0, 0.596078431372549, 0.5882352941176471),  # tab20[7]
+    (0.5803921568627451, 0.403921568627451, 0.7411764705882353),  # tab20[8]
+    (0.7725490196078432, 0.6901960784313725, 0.8352941176470589),  # tab20[9]
+    (0.5490196078431373, 0.33725490196078434, 0.29411764705882354),  # tab20[10]
+    (0.7686274509803922, 0.611764705882353, 0.5803921568627451),  # tab20[11]
+    (0.8901960784313725, 0.4666666666666667, 0.7607843137254902),  # tab20[12]
+    (0.9686274509803922, 0.7137254901960784, 0.8235294117647058),  # tab20[13]
+    (0.4980392156862745, 0.4980392156862745, 0.4980392156862745),  # tab20[14]
+    (0.7803921568627451, 0.7803921568627451, 0.7803921568627451),  # tab20[15]
+    (0.7372549019607844, 0.7411764705882353, 0.13333333333333333),  # tab20[16]
+    (0.8588235294117647, 0.8588235294117647, 0.5529411764705883),  # tab20[17]
+    (0.09019607843137255, 0.7450980392156863, 0.8117647058823529),  # tab20[18]
+    (0.6196078431372549, 0.8549019607843137, 0.8980392156862745),  # tab20[19]
+)
+
+
+def task_palette(tasks: Sequence[str]) -> dict[str, tuple[float, float, float]]:
+    """One colour per task, for any number of tasks: task ``i`` (in the vocabulary's order) takes ``tab20``
+    entry ``(2 * i) % 20 + (i // 10) % 2``, the dark shades of the ten hues, then the light ones; colours repeat
+    from the 21st task on."""
+    return {task: TAB20[(2 * index) % 20 + (index // 10) % 2] for index, task in enumerate(tasks)}
+
+
+#: One colour per task of Table I: the one palette of every picture that colours by task.
+TASK_COLOURS: Final[dict[str, tuple[float, float, float]]] = task_palette(TASKS)

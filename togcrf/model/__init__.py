@@ -8,6 +8,7 @@ One module per part: ``registry`` (the model names), ``options`` (every option, 
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from togcrf.model.backbone import BACKBONES
@@ -18,7 +19,7 @@ from togcrf.model.registry import MODEL_NAMES, MODELS, PAPER_NAMES
 
 
 def build_model(name: str, backbone: str = "resnet18", options: ModelOptions | dict[str, Any] | None = None,
-                ) -> GraspDetector:
+                vocabulary: Mapping[str, Sequence[str]] | None = None) -> GraspDetector:
     """A model of Table II by name (``MODELS``).
 
     Parameters
@@ -28,6 +29,8 @@ def build_model(name: str, backbone: str = "resnet18", options: ModelOptions | d
     backbone : str
         One of ``BACKBONES``.
     options : ModelOptions, or nested or dotted option values (``togcrf.model.options.model_options``)
+    vocabulary : mapping, optional
+        The categories and tasks its outputs are indexed by (default Table I's; ``GraspDetector``).
 
     Raises
     ------
@@ -37,7 +40,7 @@ def build_model(name: str, backbone: str = "resnet18", options: ModelOptions | d
     if name not in MODELS:
         raise ValueError(f"unknown model {name!r}; expected one of {', '.join(MODEL_NAMES)}")
     spec = MODELS[name]
-    return GraspDetector(backbone, spec.crf_terms, model_options(options), spec.grasp_branch)
+    return GraspDetector(backbone, spec.crf_terms, model_options(options), spec.grasp_branch, vocabulary)
 
 
 __all__ = ["BACKBONES", "MODELS", "MODEL_NAMES", "PAPER_NAMES", "GraspDetector", "ModelOptions", "batch_images",

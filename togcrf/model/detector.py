@@ -1,8 +1,8 @@
 """The detector of every model of Table II (paper, Section IV-B/C, Fig. 3): :class:`GraspDetector`.
 
 Depth image -> ResNet with a feature pyramid (``togcrf.model.backbone``) -> RPN -> RoIAlign 7 x 7 ->
-the RCNN box branch (torchvision's two-layer MLP head and predictor: box refinement and the 10 categories
-plus background), and one grasp branch, as torchvision's ``RoIHeads`` holds its box, mask and keypoint
+the RCNN box branch (torchvision's two-layer MLP head and predictor: box refinement and the vocabulary's
+categories plus background), and one grasp branch, as torchvision's ``RoIHeads`` holds its box, mask and keypoint
 branches:
 
 - "roi" (TOG and TOG-CRFs): the grasp head (``togcrf.model.grasp_head``) on the pooled features of each
@@ -18,6 +18,7 @@ eval mode a list of per-image detections with grasp candidates.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 
 import torch
 from torch import nn
@@ -28,7 +29,7 @@ from torchvision.models.detection.roi_heads import RoIHeads, fastrcnn_loss
 from torchvision.models.detection.rpn import RegionProposalNetwork, RPNHead
 from torchvision.ops.poolers import initLevelMapper
 
-from osgd.contract.taxonomy import CATEGORIES, TASKS
+from osgd.contract.taxonomy import VOCABULARY
 from togcrf.anchors import GRID, decode, match, roi_anchors
 from togcrf.crf import MeanFieldCrf
 from togcrf.fcgn import box_candidates, image_anchors, image_grasp_targets
@@ -100,13 +101,13 @@ def build_roi_pool(options: ModelOptions) -> FastMultiScaleRoIAlign:
     return roi_pool
 
 
-def build_roi_heads(options: ModelOptions) -> RoIHeads:
-    """torchvision's RoIHeads: RoIAlign 7 x 7 (:func:`build_roi_pool`), the RCNN's MLP head and predictor; the
-    grasp branch pools through the same RoIAlign."""
+def build_roi_heads(options: ModelOptions, category_count: int) -> RoIHeads:
+    """torchvision's RoIHeads: RoIAlign 7 x 7 (:func:`build_roi_pool`), the RCNN's MLP head and predictor
+    (``category_count`` classes and the background); the grasp branch pools through the same RoIAlign."""
     box = options.box_head
     return RoIHeads(
         build_roi_pool(options), TwoMLPHead(options.backbone.fpn_channels * GRID * GRID, box.size),
-        FastRCNNPredictor(box.size, len(CATEGORIES) + 1),
+        FastRCNNPredictor(box.size, category_count + 1),
         fg_iou_thresh=0.5, bg_iou_thresh=0.5, batch_size_per_image=box.batch_per_image,
         positive_fraction=0.25, bbox_reg_weights=None, score_thresh=box.score_threshold,
         nms_thresh=box.nms_threshold, detections_per_img=box.detections_per_image,
@@ -171,21 +172,28 @@ class GraspDetector(nn.Module):
     options : ModelOptions
     grasp_branch : {"roi", "image"}
         "roi": TOG's, on the RoIs; "image": FCGN's, on FPN map ``fcgn.level`` of the whole image.
+    vocabulary : mapping, optional
+        ``{"categories": [...], "tasks": [...]}``: the classes and task logits, in order (default Table I's,
+        ``osgd.contract.taxonomy.VOCABULARY``); kept as :attr:`vocabulary`.
     """
 
     def __init__(self, backbone: str = "resnet18", crf_terms: tuple[bool, bool] | None = None,
-                 options: ModelOptions | None = None, grasp_branch: str = "roi") -> None:
+                 options: ModelOptions | None = None, grasp_branch: str = "roi",
+                 vocabulary: Mapping[str, Sequence[str]] | None = None) -> None:
         super().__init__()
+        vocabulary = VOCABULARY if vocabulary is None else vocabulary
+        self.vocabulary = {"categories": tuple(vocabulary["categories"]), "tasks": tuple(vocabulary["tasks"])}
+        self.task_count = len(self.vocabulary["tasks"])
         self.options = options = options or ModelOptions()
         self.grasp_branch = grasp_branch
         #: Pixels per cell of the "image" branch's feature map; None for the "roi" branch.
         self.grasp_stride = image_branch_stride(grasp_branch, options)
         self.backbone = build_backbone(backbone, options.backbone)
         self.rpn = build_rpn(options)
-        self.roi_heads = build_roi_heads(options)
-        self.grasp_head = build_grasp_head(grasp_branch, options)
+        self.roi_heads = build_roi_heads(options, len(self.vocabulary["categories"]))
+        self.grasp_head = build_grasp_head(grasp_branch, options, self.task_count)
         self.crf = None if crf_terms is None else MeanFieldCrf(
-            len(TASKS), use_omega=crf_terms[0], use_mu=crf_terms[1], iterations=options.crf.iterations,
+            self.task_count, use_omega=crf_terms[0], use_mu=crf_terms[1], iterations=options.crf.iterations,
             bandwidth=options.crf.bandwidth)
         #: Counts of the last training step for on-the-fly metrics: {"acc_t_hits", "acc_t_rois"}.
         self.last_training_stats: dict[str, int] = {}
@@ -298,14 +306,15 @@ class GraspDetector(nn.Module):
         outputs = self.grasp_outputs(features, rois, image_sizes)
         positive, regression_targets, task_targets = match(
             outputs.anchors, torch.cat(rois).float(), grasps[owners].float(), valid[owners], tasks[owners],
-            len(TASKS))
+            self.task_count)
         return outputs, GraspTargets(positive, regression_targets, task_targets)
 
     def _image_training_grasps(self, features: dict[str, torch.Tensor], targets: list[dict[str, torch.Tensor]],
                                ) -> tuple[GraspOutputs, GraspTargets]:
         """The "image" branch in train mode: every grasp of an image is a target of its cell's anchors."""
         outputs = self.image_grasp_outputs(features)
-        return outputs, GraspTargets(*image_grasp_targets(targets, outputs.anchors, self.grasp_stride))
+        return outputs, GraspTargets(*image_grasp_targets(targets, outputs.anchors, self.grasp_stride,
+                                                               self.task_count))
 
     def _grasp_losses(self, outputs: GraspOutputs, targets: GraspTargets) -> dict[str, torch.Tensor]:
         """``togcrf.losses.grasp_losses`` of a branch; sets ``last_training_stats``."""

@@ -14,7 +14,6 @@ import torch
 from torch import nn
 from torch.nn import functional
 
-from osgd.contract.taxonomy import TASKS
 from togcrf.anchors import ANCHOR_ANGLES
 from togcrf.model.backbone import norm_layer
 from togcrf.model.options import ModelOptions
@@ -65,7 +64,7 @@ def stable_probability(stability: torch.Tensor) -> torch.Tensor:
 class GraspHead(nn.Module):
     """3 ResBlocks (``blocks``) and the regression, stability and task convolutions (see the module docstring)."""
 
-    def __init__(self, in_channels: int, channels: int, norm: str, task_count: int = len(TASKS),
+    def __init__(self, in_channels: int, channels: int, norm: str, task_count: int,
                  blocks: int = 3, output_norm: bool = True) -> None:
         super().__init__()
         self.anchors = len(ANCHOR_ANGLES)
@@ -95,11 +94,12 @@ class GraspHead(nn.Module):
             self.task(features), self.task_count)
 
 
-def build_grasp_head(grasp_branch: str, options: ModelOptions) -> GraspHead:
+def build_grasp_head(grasp_branch: str, options: ModelOptions, task_count: int) -> GraspHead:
     """The grasp head of a branch: 3 ResBlocks of ``grasp_head.channels`` ("roi") or ``fcgn.blocks`` of
-    ``fcgn.channels`` ("image")."""
+    ``fcgn.channels`` ("image"), ``task_count`` task logits per candidate."""
     norm, trunk_norm = options.backbone.norm, options.grasp_head.trunk_norm
     if grasp_branch == "image":
-        return GraspHead(options.backbone.fpn_channels, options.fcgn.channels, norm, blocks=options.fcgn.blocks,
-                         output_norm=trunk_norm)
-    return GraspHead(options.backbone.fpn_channels, options.grasp_head.channels, norm, output_norm=trunk_norm)
+        return GraspHead(options.backbone.fpn_channels, options.fcgn.channels, norm, task_count,
+                         blocks=options.fcgn.blocks, output_norm=trunk_norm)
+    return GraspHead(options.backbone.fpn_channels, options.grasp_head.channels, norm, task_count,
+                     output_norm=trunk_norm)

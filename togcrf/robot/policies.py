@@ -168,7 +168,8 @@ class ModelPolicy:
         self.last_detections = detections
         count = len(detections.scores)
         try:
-            best = best_grasp_for_task(detections, trial.task, trial.category, self.min_stability)
+            best = best_grasp_for_task(detections, trial.task, trial.category, self.min_stability,
+                                       self.model.vocabulary)
         except ValueError as error:
             return Choice(None, detections=count, reason=str(error))
         return Choice(np.asarray(best["rectangle"], dtype=np.float64), best["category"],
