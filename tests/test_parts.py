@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -141,12 +142,16 @@ def test_true_length_of_a_diagonal_mesh():
 # -- the models stage -------------------------------------------------------------------------------------
 
 
-def _build_user(tmp_path, meshes: dict[str, tuple[trimesh.Trimesh, str]]):
-    """Run the models stage on users' meshes (file stem -> (mesh, sidecar text)); the rows by stem."""
+def _build_user(tmp_path, meshes: dict[str, tuple[trimesh.Trimesh, str]], files: dict[str, np.ndarray] | None = None,
+                suffix: str = ".stl"):
+    """Run the models stage on users' meshes (file stem -> (mesh, sidecar text)), with ``files`` (name -> array,
+    saved as .npy) beside them; the rows by stem."""
     user_dir = tmp_path / "mine"
     user_dir.mkdir()
+    for name, array in (files or {}).items():
+        np.save(user_dir / name, array)
     for stem, (mesh, sidecar) in meshes.items():
-        mesh.export(user_dir / f"{stem}.stl")
+        mesh.export(user_dir / f"{stem}{suffix}")
         (user_dir / f"{stem}.toml").write_text(sidecar)
     stage = ModelsStage()
     params = stage.Params(sources=["user"], user_dir=str(user_dir), decomposition="hull")
@@ -197,6 +202,68 @@ def test_sidecar_regions_win_and_automatic_parts_fill_the_rest(tmp_path):
     assert claimed.any() and (face_parts[claimed] == PART_INDEX["handle"]).all()
     assert {PART_INDEX["handle"], PART_INDEX["blade"]} <= set(face_parts[~claimed])
     assert json.loads(row["provenance"])["parts"]["method"] == "sidecar+automatic"
+
+
+def _stored_centres_and_parts(row: dict) -> tuple[np.ndarray, np.ndarray]:
+    mesh = trimesh.Trimesh(np.array(row["vertices"]), np.array(row["faces"]), process=False)
+    return mesh.triangles_center, np.array(row["face_parts"])
+
+
+def test_a_part_label_file_gives_each_face_its_part_and_regions_still_win(tmp_path):
+    """Labels against the geometry (the handle end labelled head), so that only the file can explain them; a
+    region claims the last centimetre; unlabelled faces (-1) get automatic parts."""
+    mesh = _tool("hammer", 2).mesh
+    x = mesh.triangles_center[:, 0]
+    middle = float(np.median(x))
+    labels = np.where(x < middle, 1, 0)  # 0: handle, 1: head
+    labels[np.abs(x - middle) < 0.01] = -1
+    sidecar = ('category = "hammer"\nscale = 1.0\n\n[part_labels]\nfile = "hammer.parts.npy"\n'
+               'names = ["handle", "head"]\n\n[[parts]]\npart = "neck"\n'
+               f"half_space = {{ point = [{x.max() - 0.01}, 0.0, 0.0], normal = [1.0, 0.0, 0.0] }}\n")
+    rows, _, _ = _build_user(tmp_path, {"hammer": (mesh, sidecar)}, {"hammer.parts.npy": labels})
+    centres, face_parts = _stored_centres_and_parts(rows["hammer"])
+    region = centres[:, 0] >= x.max() - 0.01
+    low, high = centres[:, 0] < middle - 0.012, (centres[:, 0] > middle + 0.012) & ~region
+    assert (face_parts[low] == PART_INDEX["head"]).all() and (face_parts[high] == PART_INDEX["handle"]).all()
+    assert region.any() and (face_parts[region] == PART_INDEX["neck"]).all()
+    assert json.loads(rows["hammer"]["provenance"])["parts"]["method"] == "sidecar+automatic"
+
+
+def test_part_labels_per_vertex_give_a_face_the_part_of_two_of_its_corners(tmp_path):
+    mesh = _tool("screwdriver", 1).mesh
+    labels = np.where(mesh.vertices[:, 0] > float(np.median(mesh.vertices[:, 0])), 0, 1)  # 0: shaft, 1: handle
+    sidecar = ('category = "screwdriver"\nscale = 1.0\n\n[part_labels]\nfile = "s.npy"\n'
+               'names = ["shaft", "handle"]\nper = "vertex"\n')
+    rows, _, _ = _build_user(tmp_path, {"s": (mesh, sidecar)}, {"s.npy": labels}, suffix=".ply")
+    corners = labels[mesh.faces]
+    expected = np.where(corners.sum(axis=1) >= 2, PART_INDEX["handle"], PART_INDEX["shaft"])
+    _, face_parts = _stored_centres_and_parts(rows["s"])
+    assert len(face_parts) == len(mesh.faces) and (face_parts == expected).all()
+    assert json.loads(rows["s"]["provenance"])["parts"]["method"] == "sidecar"
+
+
+@pytest.mark.parametrize(("labels", "expected"), [
+    (np.zeros(5, dtype=np.int64), r"s\.npy: expected \d+ integers, one per face of the mesh as trimesh reads it, got "
+                                  r"an array of shape \(5,\)"),
+    (None, r"s\.npy: label 2 of face 0: expected -1 \(unknown\) or 0-1, an index into names"),
+])
+def test_a_part_label_file_that_does_not_fit_fails_its_item_naming_it(tmp_path, labels, expected):
+    mesh = _tool("knife", 0).mesh
+    labels = np.full(len(mesh.faces), 2) if labels is None else labels
+    sidecar = 'category = "knife"\nscale = 1.0\n\n[part_labels]\nfile = "s.npy"\nnames = ["handle", "blade"]\n'
+    user_dir = tmp_path / "mine"
+    user_dir.mkdir()
+    np.save(user_dir / "s.npy", labels)
+    mesh.export(user_dir / "s.stl")
+    (user_dir / "s.toml").write_text(sidecar)
+    stage = ModelsStage()
+    params = stage.Params(sources=["user"], user_dir=str(user_dir), decomposition="hull")
+    report = run_stage(stage, stage.planned(params, 0, {}), ShardStore(tmp_path / "data"))
+    assert len(report.failures) == 1 and re.search(expected, report.failures[0].error), report.failures[0].error
+    # the label file is part of the item's key: another file, another key
+    first = stage.planned(params, 0, {})[0].key
+    np.save(user_dir / "s.npy", np.zeros(len(mesh.faces), dtype=np.int64))
+    assert stage.planned(params, 0, {})[0].key != first
 
 
 def test_a_user_mesh_whose_parts_cannot_be_found_gets_a_note_and_is_counted(tmp_path):

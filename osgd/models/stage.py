@@ -258,7 +258,7 @@ class ModelsStage(Stage):
         for mesh_path in user.list_user_meshes(base):
             sidecar = user.sidecar_path(mesh_path)
             problems = _unreadable([mesh_path, sidecar], base)
-            files = [mesh_path, sidecar, *([] if problems else user.grasp_file_paths(sidecar))]
+            files = [mesh_path, sidecar, *([] if problems else user.named_files(sidecar))]
             problems = problems or _unreadable(files, base)
             payload = {**common, "source": "user", "mesh": mesh_path.name}
             if problems:
@@ -313,7 +313,8 @@ class ModelsStage(Stage):
             sidecar_file = user.sidecar_path(mesh_path)
             sidecar = user.read_sidecar(sidecar_file)
             mesh, groups = user.load_user_mesh(mesh_path)
-            face_parts = user.face_parts_from_regions(mesh, sidecar, groups, str(sidecar_file))
+            face_parts = user.face_parts_from_regions(mesh, sidecar, groups, str(sidecar_file),
+                                                     sidecar_file.parent)
             pairs, notes = user.read_grasp_files(sidecar, location)
             return _SourceModel(
                 mesh_path.stem,

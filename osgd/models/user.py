@@ -6,7 +6,12 @@ For ``<user dir>/drill.stl`` the sidecar is ``<user dir>/drill.toml``::
     length = 0.25            # real length, m: the longest side of the mesh's oriented box  (or: scale = 0.001)
     default_part = "handle"  # faces no region claims; omit: automatic parts (osgd.models.parts)
 
-    [[parts]]                # later regions win over earlier ones
+    [part_labels]            # optional: a part per face (or per vertex) from a file
+    file = "drill.parts.npy" # integers, one per face of the mesh as trimesh reads it; -1: unknown
+    names = ["handle", "shaft", "tip"]   # the part each integer 0, 1, 2... stands for
+    per = "face"             # or "vertex": a face takes the part of at least two of its corners
+
+    [[parts]]                # later regions win over earlier ones, and over the labels
     part = "shaft"
     box = { min = [0.0, -10.0, -10.0], max = [150.0, 10.0, 10.0] }
 
@@ -24,7 +29,12 @@ For ``<user dir>/drill.stl`` the sidecar is ``<user dir>/drill.toml``::
     frame = "model"          # "model" (the mesh's own axes) or "blender" (OSGD's Z-up files)
 
 Regions and grasp points are in the mesh's own frame and units; a face
-belongs to a region when its centroid does. See ``docs/models.md``.
+belongs to a region when its centroid does. A face's part is, in this order
+of precedence: the last region that holds it, its label in the part label
+file, ``default_part``, else unknown (automatic parts fill the unknown
+faces where no ``default_part`` is given). Faces and vertices of a label
+file are in the order ``trimesh.load(path, process=False)`` reads them
+(a scene's objects one after another). See ``docs/models.md``.
 """
 
 from __future__ import annotations
@@ -109,6 +119,22 @@ class GraspFile(_Strict):
         return value
 
 
+class PartLabels(_Strict):
+    """A file of part labels, one integer per face (or vertex), relative to the sidecar."""
+
+    file: str
+    names: list[str] = Field(min_length=1, description="the part that label 0, 1, 2... stands for")
+    per: Literal["face", "vertex"] = "face"
+
+    @field_validator("names")
+    @classmethod
+    def _known_parts(cls, names: list[str]) -> list[str]:
+        unknown = [name for name in names if name not in PART_INDEX]
+        if unknown:
+            raise ValueError(f"unknown part(s) {unknown}; expected some of {list(PARTS)}")
+        return names
+
+
 class Sidecar(_Strict):
     """The contents of a sidecar file."""
 
@@ -118,6 +144,7 @@ class Sidecar(_Strict):
     )
     scale: float | None = Field(default=None, gt=0, description="mesh units to metres")
     default_part: str | None = None
+    part_labels: PartLabels | None = None
     parts: list[PartRegion] = Field(default_factory=list)
     grasps: list[GraspFile] = Field(default_factory=list)
 
@@ -230,6 +257,9 @@ def sidecar_to_toml(sidecar: Sidecar) -> str:
     lines = [
         f"{key} = {_toml_value(data[key])}" for key in ("category", "length", "scale", "default_part") if key in data
     ]
+    if "part_labels" in data:
+        lines.append("\n[part_labels]")
+        lines.extend(f"{key} = {_toml_value(value)}" for key, value in data["part_labels"].items())
     for table in ("parts", "grasps"):
         for entry in data.get(table, []):
             lines.append(f"\n[[{table}]]")
@@ -259,10 +289,50 @@ def _load_with_groups(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.nd
     return trimesh.util.concatenate(meshes), groups
 
 
+def read_part_labels(mesh: trimesh.Trimesh, labels: PartLabels, base_dir: Path) -> np.ndarray:
+    """The part of each face from a part label file (``taxonomy.PARTS`` indices, -1 unknown).
+
+    Per vertex, a face takes the part that at least two of its three corners have, else its first corner's.
+
+    Returns
+    -------
+    (F,) int8
+
+    Raises
+    ------
+    InputError
+        Naming the file: missing, not an ``.npy`` of integers, one per face (vertex) of the mesh, each -1 or
+        an index into ``names``.
+    """
+    path = base_dir / labels.file
+    if not path.is_file():
+        raise InputError(path, "part label file named in the sidecar does not exist")
+    try:
+        values = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        raise InputError(path, str(error)) from error
+    count = len(mesh.faces) if labels.per == "face" else len(mesh.vertices)
+    if values.ndim != 1 or len(values) != count or not np.issubdtype(values.dtype, np.integer):
+        raise InputError(path, f"expected {count} integers, one per {labels.per} of the mesh as trimesh reads it, "
+                               f"got an array of shape {values.shape} and type {values.dtype}")
+    wrong = np.flatnonzero((values < -1) | (values >= len(labels.names)))
+    if len(wrong):
+        raise InputError(path, f"label {int(values[wrong[0]])} of {labels.per} {int(wrong[0])}: expected -1 "
+                               f"(unknown) or 0-{len(labels.names) - 1}, an index into names {labels.names}")
+    lookup = np.array([*(PART_INDEX[name] for name in labels.names), UNKNOWN_PART], dtype=np.int8)
+    parts = lookup[values]  # -1 takes the last entry: unknown
+    if labels.per == "vertex":
+        corners = parts[mesh.faces]
+        parts = np.where(corners[:, 1] == corners[:, 2], corners[:, 1], corners[:, 0])
+    return parts.astype(np.int8)
+
+
 def face_parts_from_regions(
-    mesh: trimesh.Trimesh, sidecar: Sidecar, groups: dict[str, np.ndarray], origin: str = "<sidecar>"
+    mesh: trimesh.Trimesh, sidecar: Sidecar, groups: dict[str, np.ndarray], origin: str = "<sidecar>",
+    base_dir: Path | None = None,
 ) -> np.ndarray:
-    """The part of each face from the sidecar's regions (later regions win).
+    """The part of each face from the sidecar: its regions (later regions win) over its part label file
+    (read from ``base_dir``, the sidecar's folder) over ``default_part``.
 
     Returns
     -------
@@ -272,9 +342,14 @@ def face_parts_from_regions(
     ------
     SidecarError
         For a group the mesh does not have.
+    InputError
+        For a part label file that cannot be used (:func:`read_part_labels`).
     """
     default = PART_INDEX[sidecar.default_part] if sidecar.default_part else UNKNOWN_PART
     parts = np.full(len(mesh.faces), default, dtype=np.int8)
+    if sidecar.part_labels is not None:
+        labelled = read_part_labels(mesh, sidecar.part_labels, Path(origin).parent if base_dir is None else base_dir)
+        parts = np.where(labelled != UNKNOWN_PART, labelled, parts).astype(np.int8)
     centres = mesh.triangles_center
     for region in sidecar.parts:
         if region.box is not None:
@@ -322,13 +397,15 @@ def read_grasp_files(sidecar: Sidecar, base_dir: Path) -> tuple[list[AnnotatedPa
     return pairs, notes
 
 
-def grasp_file_paths(sidecar_file: Path) -> list[Path]:
-    """The grasp files a sidecar names (empty when it does not parse: the build reports that)."""
+def named_files(sidecar_file: Path) -> list[Path]:
+    """The files a sidecar names: its grasp files and its part label file (empty when it does not parse: the
+    build reports that)."""
     try:
         sidecar = read_sidecar(sidecar_file)
     except InputError:
         return []
-    return [sidecar_file.parent / entry.file for entry in sidecar.grasps]
+    labels = [] if sidecar.part_labels is None else [sidecar_file.parent / sidecar.part_labels.file]
+    return [*(sidecar_file.parent / entry.file for entry in sidecar.grasps), *labels]
 
 
 def load_user_mesh(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.ndarray]]:
