@@ -19,7 +19,7 @@ T_975_3 = 3.182
 def sets_document(model: str, seed: int | None, acc_top1: dict[str, float], crowded: float) -> dict:
     """An eval-sets.json document: Acc-T top-1 per test set, one stratum of crowding, mAP fixed."""
     def metrics(value: float, protocol: str) -> dict:
-        return {"protocol": protocol, "mAP": 0.5, "mAP-G": 0.2, "Acc-T top1": value, "Acc-T top5": None,
+        return {"protocol": protocol, "mAP": 0.5, "mAP-G": 0.2, "Acc-T top1": value, "Acc-T top5": None, "rois": 40,
                 "Acc-T top10": 0.1, "Acc-T by other objects' share": {">=0.30": {"rois": 9, "Acc-T top1": crowded}}}
     return {"model": model, "seed": seed, "checkpoint": f"/nowhere/{model}-{seed}/checkpoint.pt",
             "test_sets": {name: {"metrics": {"ours": metrics(value, "ours"), "lab": metrics(value, "lab")}}
@@ -54,7 +54,9 @@ def test_pairing_by_seed_removes_the_spread_between_seeds() -> None:
     assert 0 < cell["paired"][0] < 2.0 < cell["paired"][1]
     assert cell["unpaired"][0] < 0 < cell["unpaired"][1]
     # the crowded stratum compared too; a metric that is None anywhere is left out
-    assert result["test_sets"]["novel"]["Acc-T by other objects' share: >=0.30"]["difference"] == pytest.approx(10.0)
+    crowded = result["test_sets"]["novel"]["Acc-T by other objects' share: >=0.30"]
+    assert crowded["difference"] == pytest.approx(10.0) and crowded["rois"] == 9
+    assert cell["rois"] == 40 and "rois" not in result["test_sets"]["novel"]["mAP"]
     assert "Acc-T top5" not in result["test_sets"]["novel"]
 
 

@@ -68,6 +68,15 @@ def flat_metrics(metrics: dict[str, Any]) -> dict[str, float]:
     return values
 
 
+def stratum_rois(metrics: dict[str, Any]) -> dict[str, int]:
+    """The RoIs judged in each stratum of one test set (the same keys as :func:`flat_metrics`), and overall."""
+    counts = {name: int(metrics.get("rois") or 0) for name in HEADLINE_METRICS if name.startswith("Acc-T")}
+    for stratum in STRATA:
+        for bin_name, cell in (metrics.get(stratum) or {}).items():
+            counts[f"{stratum}: {bin_name}"] = int(cell.get("rois") or 0)
+    return counts
+
+
 def interval(values: Sequence[float]) -> tuple[float, float] | None:
     """The 95 % Student's t interval of the mean of ``values`` (None for fewer than two)."""
     if len(values) < 2:
@@ -122,7 +131,7 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
     dict
         ``protocol``, ``baseline`` and ``candidate`` (``model``, ``seeds``, ``sources``), ``paired`` (whether the
         seeds paired) and ``test_sets``: set -> metric -> :func:`compare_metric`, for the sets and metrics that
-        every evaluation holds.
+        every evaluation holds; Acc-T's also hold ``rois``, the RoIs judged, averaged over the runs.
 
     Raises
     ------
@@ -145,6 +154,12 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
                                                    [run[set_name][metric] for run in values["candidate"]], order)
                             for metric in metrics}
                  for set_name, metrics in common.items()}
+    for set_name, metrics in test_sets.items():
+        counts = [stratum_rois(set_metrics(document, protocol)[set_name]) for group in groups.values()
+                  for _, document in group]
+        for metric, cell in metrics.items():
+            if metric in counts[0]:
+                cell["rois"] = float(np.mean([count.get(metric, 0) for count in counts]))
     return {"protocol": protocol, "paired": order is not None, "test_sets": test_sets,
             **{name: {"model": _group_model(group), "seeds": seeds[name], "sources": [str(path) for path, _ in group]}
                for name, group in groups.items()}}
@@ -179,7 +194,7 @@ def _format_interval(bounds: tuple[float, float] | None) -> str:
 def format_comparison(result: dict[str, Any]) -> str:
     """:func:`compare`'s result as text: a block per test set, a line per metric."""
     baseline, candidate = result["baseline"], result["candidate"]
-    header = (f"{'metric':<42}{baseline['model'][:10]:>10}{candidate['model'][:10]:>11}{'diff':>8}"
+    header = (f"{'metric':<42}{'RoIs':>6}{baseline['model'][:10]:>10}{candidate['model'][:10]:>11}{'diff':>8}"
               f"{'paired 95 %':>18}{'Welch 95 %':>18}")
     lines = [f"{candidate['model']} minus {baseline['model']}, protocol {result['protocol']}, "
              f"{len(baseline['seeds'])} and {len(candidate['seeds'])} runs; "
@@ -187,11 +202,12 @@ def format_comparison(result: dict[str, Any]) -> str:
     for set_name, metrics in result["test_sets"].items():
         lines += ["", f"test set {set_name}", header, "-" * len(header)]
         for metric, cell in metrics.items():
-            lines.append(f"{metric[:41]:<42}{cell['baseline']:>10.1f}{cell['candidate']:>11.1f}"
+            rois = f"{cell['rois']:.0f}" if "rois" in cell else ""
+            lines.append(f"{metric[:41]:<42}{rois:>6}{cell['baseline']:>10.1f}{cell['candidate']:>11.1f}"
                          f"{cell['difference']:>+8.1f}{_format_interval(cell['paired']):>18}"
                          f"{_format_interval(cell['unpaired']):>18}")
     lines.append("")
-    lines.append("percentage points; * : the interval excludes zero")
+    lines.append("percentage points; RoIs: judged for Acc-T, the mean over the runs; * : the interval excludes zero")
     return "\n".join(lines)
 
 
