@@ -167,6 +167,9 @@ def test_training_from_weights_of_another_vocabulary_is_refused(samples_dir: Pat
     expected = r"the data trained on is labelled with another vocabulary than --init .*first.checkpoint\.pt: tasks"
     with pytest.raises(ValueError, match=expected):
         train(quick_training(samples_dir, tmp_path / "second", init=str(tmp_path / "first" / "checkpoint.pt")))
+    # resuming the first run on the relabelled data: refused too
+    with pytest.raises(ValueError, match=r"the data trained on is labelled with another vocabulary than .*first"):
+        train(quick_training(samples_dir, tmp_path / "first", epochs=2, resume=True))
 
 
 def test_a_checkpoint_of_another_vocabulary_is_refused(samples_dir: Path, tmp_path: Path) -> None:

@@ -29,32 +29,36 @@ import numpy as np
 import typer
 from scipy import stats
 
-from togcrf.evaluate import document_protocol, evaluation_seed, read_evaluation, row_name, write_json
-from togcrf.metrics import PROTOCOLS
+from togcrf.evaluate import TABLE_COLUMNS, document_protocol, evaluation_seed, read_evaluation, row_name, write_json
+from togcrf.metrics import COVER_STRATUM, PILE_STRATUM, PROTOCOLS
 
-#: Table II's metrics compared, as the metrics dict names them.
-HEADLINE_METRICS = ("mAP", "mAP-G", "Acc-T top1", "Acc-T top5", "Acc-T top10")
+#: Table II's metrics compared: its columns but the speed.
+HEADLINE_METRICS = TABLE_COLUMNS[:-1]
 
 #: The strata of Acc-T that an evaluation may hold (:mod:`togcrf.metrics`), compared on their top-1.
-STRATA = ("Acc-T by other objects' share", "Acc-T by objects in the image")
+STRATA = (COVER_STRATUM, PILE_STRATUM)
 
 #: Confidence of the intervals.
 CONFIDENCE = 0.95
 
 
-def set_metrics(document: dict[str, Any], protocol: str) -> dict[str, dict[str, Any]]:
-    """Test set name -> the metrics of one protocol, for a plain or a test-set evaluation.
+def set_metrics(document: dict[str, Any], protocol: str, source: str = "the evaluation") -> dict[str, dict[str, Any]]:
+    """Test set name -> the metrics of one protocol, for a plain or a test-set evaluation read from ``source``.
 
     Raises
     ------
     ValueError
-        If a plain evaluation is of another protocol.
+        Naming ``source``, if a plain evaluation is of another protocol or a test set lacks the protocol.
     """
     if "test_sets" in document:
+        missing = [name for name, entry in document["test_sets"].items() if protocol not in entry.get("metrics", {})]
+        if missing:
+            raise ValueError(f"{source}: test set(s) {missing} hold no metrics of protocol {protocol!r}")
         return {name: entry["metrics"][protocol] for name, entry in document["test_sets"].items()}
     if document_protocol(document) != protocol:
-        raise ValueError(f"{document.get('checkpoint')}: an evaluation of protocol {document_protocol(document)!r}, "
-                         f"not {protocol!r}")
+        raise ValueError(f"{source}: an evaluation of protocol {document_protocol(document)!r}, not {protocol!r}")
+    if "metrics" not in document:
+        raise ValueError(f"{source}: not an evaluation (no metrics)")
     return {"test": document["metrics"]}
 
 
@@ -143,7 +147,8 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
     if not baseline or not candidate:
         raise ValueError("give at least one evaluation in --baseline and one in --candidate")
     groups = {"baseline": baseline, "candidate": candidate}
-    values = {name: [flat_sets(document, protocol) for _, document in group] for name, group in groups.items()}
+    values = {name: [flat_sets(document, protocol, str(path)) for path, document in group]
+              for name, group in groups.items()}
     seeds = {name: [evaluation_seed(path, document) for path, document in group] for name, group in groups.items()}
     order = paired_order(seeds["baseline"], seeds["candidate"])
     common = _common_keys([*values["baseline"], *values["candidate"]])
@@ -156,7 +161,7 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
                  for set_name, metrics in common.items()}
     for set_name, metrics in test_sets.items():
         counts = [stratum_rois(set_metrics(document, protocol)[set_name]) for group in groups.values()
-                  for _, document in group]
+                  for _, document in group]  # every document read above
         for metric, cell in metrics.items():
             if metric in counts[0]:
                 cell["rois"] = float(np.mean([count.get(metric, 0) for count in counts]))
@@ -165,9 +170,9 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
                for name, group in groups.items()}}
 
 
-def flat_sets(document: dict[str, Any], protocol: str) -> dict[str, dict[str, float]]:
+def flat_sets(document: dict[str, Any], protocol: str, source: str) -> dict[str, dict[str, float]]:
     """Test set -> :func:`flat_metrics` of one evaluation."""
-    return {name: flat_metrics(metrics) for name, metrics in set_metrics(document, protocol).items()}
+    return {name: flat_metrics(metrics) for name, metrics in set_metrics(document, protocol, source).items()}
 
 
 def _common_keys(runs: Sequence[dict[str, dict[str, float]]]) -> dict[str, list[str]]:

@@ -79,7 +79,7 @@ class MeanFieldCrf(nn.Module):
     Parameters
     ----------
     task_count : int
-        Labels per candidate (12, Table I).
+        Task labels per candidate: those of the model's vocabulary (Table I: 12).
     use_omega, use_mu : bool
         Include the compatibility term ``omega`` / the kernel term ``mu``.
     iterations : int
@@ -92,7 +92,7 @@ class MeanFieldCrf(nn.Module):
 
     def __init__(
         self,
-        task_count: int = 12,
+        task_count: int,
         use_omega: bool = True,
         use_mu: bool = True,
         iterations: int = DEFAULT_ITERATIONS,

@@ -65,7 +65,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from itertools import islice
 from pathlib import Path
@@ -75,6 +75,7 @@ import numpy as np
 import torch
 
 from osgd.contract.samples import iter_samples, sample_shards
+from osgd.contract.taxonomy import CATEGORIES
 from togcrf.anchors import ANCHOR_ANGLES
 from togcrf.checkpoint import load_checkpoint
 from togcrf.evaluate import TABLE_COLUMNS
@@ -108,7 +109,7 @@ def neighbourhood_mean(stability: np.ndarray, angle_radius: int) -> np.ndarray:
     return np.nanmean(np.stack(stacked), axis=0).reshape(-1)
 
 
-#: Rankings of one detection's candidates: name -> f(stability (K,), task probabilities (K, 12)) -> (K,) key.
+#: Rankings of one detection's candidates: name -> f(stability (K,), task probabilities (K, T)) -> (K,) key.
 RANKINGS = {
     "stability": lambda stability, tasks: stability,
     "smooth-cells": lambda stability, tasks: neighbourhood_mean(stability, 0),
@@ -282,9 +283,11 @@ TABLE_VARIANTS = {
 METRIC_COLUMNS = TABLE_COLUMNS[:-1]
 
 
-def table_figures(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, float]:
-    """Table II figures (percent, our protocol, ``METRIC_COLUMNS``) of the (detections, truth) pairs."""
-    evaluator = TableTwoEvaluator()
+def table_figures(pairs: list[tuple[Detections, GroundTruth]], categories: Sequence[str] = CATEGORIES,
+                  ) -> dict[str, float]:
+    """Table II figures (percent, our protocol, ``METRIC_COLUMNS``) of the (detections, truth) pairs, whose
+    category indices index ``categories`` (the model's)."""
+    evaluator = TableTwoEvaluator(categories=categories)
     for detections, truth in pairs:
         evaluator.add(detections, truth)
     result = evaluator.result()
@@ -292,9 +295,9 @@ def table_figures(pairs: list[tuple[Detections, GroundTruth]]) -> dict[str, floa
 
 
 def table_rows(pairs: list[tuple[Detections, GroundTruth]], variants: dict = TABLE_VARIANTS,
-               ) -> dict[str, dict[str, float]]:
+               categories: Sequence[str] = CATEGORIES) -> dict[str, dict[str, float]]:
     """Table II figures of each of ``variants`` over the (detections, truth) pairs."""
-    return {name: table_figures([(variant(detections, truth), truth) for detections, truth in pairs])
+    return {name: table_figures([(variant(detections, truth), truth) for detections, truth in pairs], categories)
             for name, variant in variants.items()}
 
 
@@ -363,7 +366,8 @@ def main() -> None:
     for outcome, values in quartiles.items():
         print(f"  top-1 {outcome}es ({len(distances[outcome])}): distance to the nearest ground-truth grasp centre, "
               f"quartiles {values} px")
-    rows = table_rows(pairs, variants) | {"order oracle": table_figures(order_oracle(pairs))}
+    categories = model.vocabulary["categories"]
+    rows = table_rows(pairs, variants, categories) | {"order oracle": table_figures(order_oracle(pairs), categories)}
     print(f"Table II figures of these {len(pairs)} samples (percent, our protocol):")
     for name, row in rows.items():
         print(table_line(name, row))

@@ -208,7 +208,7 @@ def prediction_to_numpy(output: dict[str, torch.Tensor], scale: float) -> Detect
     output : dict of tensors
         ``boxes`` (N, 4), ``labels`` (N,) category index + 1, ``scores``
         (N,), ``grasps`` (N, K, 5), ``grasp_stability`` (N, K),
-        ``grasp_task_probs`` (N, K, 12), all in network-input pixels.
+        ``grasp_task_probs`` (N, K, T) over the model's T tasks, all in network-input pixels.
     scale : float
         The factor :func:`togcrf.data.depth_to_tensor` applied to the image.
 

@@ -12,7 +12,7 @@ task prediction layer on its feature map". Here:
   grasps come from;
 - the grasp branch runs on one FPN level of the whole image (default level
   "1", stride 8 px): a 1 x 1 entry convolution, ``fcgn_blocks`` ResBlocks and
-  the same regression (4 x 5), stability (4 x 2) and task (4 x 12)
+  the same regression (4 x 5), stability (4 x 2) and task (4 x T)
   convolutions as TOG's grasp head, with 4 oriented anchors per cell
   centred on it (``togcrf.anchors``: angles, encoding, matching with the
   cell being the stride);

@@ -1,9 +1,9 @@
 """The paper's figure 5: heat maps of the learned CRF matrices omega and mu.
 
 ``togcrf figures CHECKPOINT --out DIR`` writes ``omega.png`` and ``mu.png``
-(each 12 x 12, task labels in Table I order on both axes, darker = higher as
-in the paper), ``figure5.png`` with both side by side, and ``crf.json`` with
-the values. The stored parameters are drawn (``model.crf.omega`` and
+(each T x T for the model's T tasks, 12 for Table I, task labels in the
+model's order on both axes, darker = higher as in the paper), ``figure5.png``
+with both side by side, and ``crf.json`` with the values. The stored parameters are drawn (``model.crf.omega`` and
 ``model.crf.mu``), not the scaled matrices of equation 4: the scale is one
 positive constant per matrix (see ``togcrf.crf``), so the picture is the same
 up to the colour bar. A variant without one of the terms (TOG-CRFs omega or

@@ -124,6 +124,11 @@ PROTOCOLS = ("ours", "lab")
 Protocol = Literal["ours", "lab"]
 #: Lower edges of the strata of Acc-T by the share of an object's box on other objects.
 COVER_BINS = (0.0, 0.05, 0.15, 0.3)
+
+#: The names, in :meth:`TableTwoEvaluator.result`, of Acc-T by other objects' share of the box and by the
+#: number of objects in the image.
+COVER_STRATUM = "Acc-T by other objects' share"
+PILE_STRATUM = "Acc-T by objects in the image"
 #: Recall thresholds of VOC07's 11-point AP, computed as the lab's code does (0.3 is 0.30000000000000004).
 ELEVEN_POINT_RECALLS = np.arange(0.0, 1.1, 0.1)
 
@@ -229,7 +234,7 @@ def match_detections(
     ----------
     boxes : (D, 4) array
     categories : (D,) int array
-        Category index (``taxonomy.CATEGORY_INDEX``, no background offset).
+        Category index (index into the vocabulary's categories, no background offset).
     scores : (D,) array
     ground_truth_boxes : (N, 4) array
     ground_truth_categories : (N,) int array
@@ -353,10 +358,10 @@ class GroundTruth:
     Attributes
     ----------
     boxes : (N, 4) float array, pixels
-    categories : (N,) int array, ``taxonomy.CATEGORY_INDEX``
+    categories : (N,) int array, index into the vocabulary's categories
     grasp_rectangles : (G, 5) float array
     grasp_objects : (G,) int array, row of ``boxes``
-    grasp_tasks : (G,) int array, ``taxonomy.TASK_INDEX``
+    grasp_tasks : (G,) int array, index into the vocabulary's tasks
     mask : (H, W) int array or None
         Instance mask: 0 background, ``mask_values[i]`` on object ``i``'s visible pixels (Acc-T by crowding).
     mask_values : (N,) int array or None
@@ -399,7 +404,7 @@ class Detections:
     Attributes
     ----------
     boxes : (D, 4) float array, pixels
-    categories : (D,) int array, ``taxonomy.CATEGORY_INDEX`` (model label - 1)
+    categories : (D,) int array, index into the vocabulary's categories (model label - 1)
     scores : (D,) float array
     grasps : (D, K, 5) float array, grasp candidates of each detection
     grasp_stability : (D, K) float array, P(stable)
@@ -650,8 +655,7 @@ class TableTwoEvaluator:
         by_cover = {f"{low:.2f}-{high:.2f}" if np.isfinite(high) else f">={low:.2f}":
                     stratum((cover >= low) & (cover < high)) for low, high in pairwise(edges)}
         by_pile = {str(count): stratum(pile == count) for count in sorted(set(pile.tolist()))}
-        return {"Acc-T by other objects' share": by_cover if np.isfinite(cover).any() else {},
-                "Acc-T by objects in the image": by_pile}
+        return {COVER_STRATUM: by_cover if np.isfinite(cover).any() else {}, PILE_STRATUM: by_pile}
 
 
 # --------------------------------------------------------------------------- speed

@@ -32,7 +32,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 
 from osgd.contract.samples import iter_samples, sample_shards, samples_vocabulary
-from osgd.contract.taxonomy import VOCABULARY, task_palette
+from osgd.contract.taxonomy import HAND_OVER, NO_TASK, VOCABULARY, task_palette
 from togcrf.checkpoint import check_vocabulary, load_checkpoint
 from togcrf.data import depth_to_tensor
 from togcrf.engine import run_model
@@ -43,7 +43,7 @@ from togcrf.metrics import Detections
 log = logging.getLogger(__name__)
 
 #: Tasks nearly every object affords: the paper names a category first (Section V-C).
-TASKS_NEEDING_CATEGORY = ("no task", "hand over")
+TASKS_NEEDING_CATEGORY = (NO_TASK, HAND_OVER)
 
 #: Grasps drawn per object, as in figure 7 (top-5 stable grasps).
 DRAWN_GRASPS = 5

@@ -260,7 +260,7 @@ def shard_vocabulary(path: Location) -> dict[str, list[str]]:
 
     A shard written before shards recorded it (samples stage version 3 and
     older) was labelled with the vocabulary of schema version 1, which is
-    today's :data:`~osgd.contract.taxonomy.VOCABULARY`.
+    :data:`~osgd.contract.taxonomy.VOCABULARY`, Table I's.
 
     Raises
     ------
@@ -271,13 +271,24 @@ def shard_vocabulary(path: Location) -> dict[str, list[str]]:
         metadata = pq.read_schema(path).metadata or {}
     except (OSError, ValueError) as error:
         raise ShardError(f"{path}: unreadable Parquet ({error})") from error
-    text = metadata.get(b"osgd.vocabulary")
+    return metadata_vocabulary(metadata, str(path))
+
+
+def metadata_vocabulary(metadata: Mapping[bytes, bytes] | None, source: str) -> dict[str, list[str]]:
+    """The vocabulary of a samples table's Parquet metadata (:func:`shard_vocabulary`), ``source`` naming it.
+
+    Raises
+    ------
+    ShardError
+        If its ``osgd.vocabulary`` is not JSON.
+    """
+    text = (metadata or {}).get(b"osgd.vocabulary")
     if text is None:
         return {field: list(names) for field, names in VOCABULARY.items()}
     try:
         return {field: list(names) for field, names in json.loads(text).items()}
     except (ValueError, AttributeError, TypeError) as error:
-        raise ShardError(f"{path}: unreadable osgd.vocabulary metadata ({error})") from error
+        raise ShardError(f"{source}: unreadable osgd.vocabulary metadata ({error})") from error
 
 
 def samples_vocabulary(shards: Sequence[Location]) -> dict[str, list[str]]:

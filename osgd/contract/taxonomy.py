@@ -10,9 +10,9 @@ Stacking Scenes with CRF-based Semantic Model", IROS 2019) and the sources of
 its figures. :func:`read_taxonomy` reads such a file into a :class:`Taxonomy`
 and checks it, naming every mistake on a line of its own; the constants of
 this module (``TASKS``, ``CATEGORIES``, ``PARTS``...) are those of Table I.
-The order of the tasks matters: the network's 12 task logits and the CRF's
-12 x 12 compatibility matrices are indexed by it; so does the order of the
-categories, the detector's classes.
+The order of the tasks matters: a detector's task logits and its CRF's
+compatibility matrices are indexed by it (12 and 12 x 12 for Table I); so
+does the order of the categories, the detector's classes.
 
 A taxonomy file holds (units: metres, kg, kg/m^3):
 
@@ -31,6 +31,7 @@ A taxonomy file holds (units: metres, kg, kg/m^3):
 
 from __future__ import annotations
 
+import math
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -121,34 +122,59 @@ class TaxonomyError(ValueError):
     """A taxonomy file with mistakes; the message has one line per mistake, each naming the file."""
 
 
-def _names(entries: Any, where: str, mistakes: list[str]) -> list[str]:
-    """The names of a list of tables (or strings), noting a missing list, a missing name or a duplicate."""
+def _names(entries: Any, where: str, mistakes: list[str], tables: bool) -> list[str]:
+    """The names of a list of strings (``tables`` False) or of tables with a ``name``, noting a missing list, an
+    entry of the wrong kind, a missing name or a duplicate."""
     if not isinstance(entries, list) or not entries:
         mistakes.append(f"{where}: expected a non-empty list")
         return []
-    names = [entry if isinstance(entry, str) else entry.get("name") if isinstance(entry, dict) else None
-             for entry in entries]
-    for index, name in enumerate(names):
-        if not isinstance(name, str) or not name.strip():
-            mistakes.append(f"{where}[{index}]: no name")
-        elif names.index(name) != index:
+    names = []
+    for index, entry in enumerate(entries):
+        name = entry.get("name") if tables and isinstance(entry, dict) else entry
+        if tables and not isinstance(entry, dict):
+            mistakes.append(f"{where}[{index}]: expected a table, got {entry!r}")
+        elif not isinstance(name, str) or not name.strip():
+            mistakes.append(f"{where}[{index}]: expected a name (a non-empty string), got {name!r}")
+        elif name in names:
             mistakes.append(f"{where}: {name!r} is named twice")
-    return [name for name in names if isinstance(name, str)]
+        else:
+            names.append(name)
+    return names
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _number_range(value: Any, where: str, mistakes: list[str]) -> tuple[float, float]:
-    if (not isinstance(value, list) or len(value) != 2 or not all(isinstance(v, int | float) for v in value)
+    if (not isinstance(value, list) or len(value) != 2 or not all(_is_number(v) for v in value)
             or not 0 < value[0] <= value[1]):
-        mistakes.append(f"{where}: expected [low, high] with 0 < low <= high, got {value!r}")
+        mistakes.append(f"{where}: expected [low, high], finite numbers with 0 < low <= high, got {value!r}")
         return (0.0, 0.0)
     return (float(value[0]), float(value[1]))
 
 
 def _positive(value: Any, where: str, mistakes: list[str], allow_zero: bool = False) -> float:
-    if not isinstance(value, int | float) or isinstance(value, bool) or value < 0 or (value == 0 and not allow_zero):
-        mistakes.append(f"{where}: expected a number {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+    if not _is_number(value) or value < 0 or (value == 0 and not allow_zero):
+        mistakes.append(f"{where}: expected a finite number {'>= 0' if allow_zero else '> 0'}, got {value!r}")
         return 0.0
     return float(value)
+
+
+def _task_requirements(entries: Any, mistakes: list[str]) -> tuple[str, ...]:
+    """Each task table's ``requirement``, noting unknown keys and a requirement that is not text."""
+    requirements = []
+    for index, entry in enumerate(entries if isinstance(entries, list) else []):
+        if not isinstance(entry, dict):
+            continue
+        for key in sorted(set(entry) - {"name", "requirement"}):
+            mistakes.append(f"tasks[{index}]: unknown key {key!r}; allowed: name, requirement")
+        requirement = entry.get("requirement")
+        if not isinstance(requirement, str) or not requirement.strip():
+            mistakes.append(f"tasks[{index}].requirement: expected the task's grasp requirement as text, "
+                            f"got {requirement!r}")
+        requirements.append(str(requirement))
+    return tuple(requirements)
 
 
 def _part_list(value: Any, where: str, parts: Sequence[str], mistakes: list[str]) -> tuple[str, ...]:
@@ -198,14 +224,18 @@ def parse_taxonomy(document: Mapping[str, Any], source: str) -> Taxonomy:
     mistakes: list[str] = []
     for key in sorted(set(document) - {"name", "parts", "tasks", "categories"}):
         mistakes.append(f"unknown key {key!r}; allowed: categories, name, parts, tasks")
-    parts = _names(document.get("parts"), "parts", mistakes)
-    tasks = _names(document.get("tasks"), "tasks", mistakes)
+    name = document.get("name", Path(source).stem)
+    if not isinstance(name, str) or not name.strip():
+        mistakes.append(f"name: expected a non-empty string, got {name!r}")
+    parts = _names(document.get("parts"), "parts", mistakes, tables=False)
+    tasks = _names(document.get("tasks"), "tasks", mistakes, tables=True)
+    requirements = _task_requirements(document.get("tasks"), mistakes)
     if tasks and tasks[0] != NO_TASK:
         mistakes.append(f"tasks: the first task must be {NO_TASK!r}, got {tasks[0]!r}")
     if tasks and HAND_OVER not in tasks:
         mistakes.append(f"tasks: {HAND_OVER!r} is missing")
     entries = document.get("categories")
-    _names(entries, "categories", mistakes)
+    _names(entries, "categories", mistakes, tables=True)
     categories = [_category(entry, f"categories[{entry.get('name', index)!r}]", parts, tasks, mistakes)
                   for index, entry in enumerate(entries if isinstance(entries, list) else [])
                   if isinstance(entry, dict)]
@@ -215,9 +245,7 @@ def parse_taxonomy(document: Mapping[str, Any], source: str) -> Taxonomy:
             mistakes.append(f"tasks: {task!r} has no rule: no category names it as its task")
     if mistakes:
         raise TaxonomyError("\n".join(f"{source}: {mistake}" for mistake in mistakes))
-    requirements = tuple(str(entry.get("requirement", "")) if isinstance(entry, dict) else ""
-                         for entry in document["tasks"])
-    return Taxonomy(name=str(document.get("name", Path(source).stem)), parts=tuple(parts), tasks=tuple(tasks),
+    return Taxonomy(name=str(name), parts=tuple(parts), tasks=tuple(tasks),
                     requirements=requirements, categories=tuple(categories))
 
 
@@ -236,6 +264,9 @@ def read_taxonomy(path: str | Path) -> Taxonomy:
         raise FileNotFoundError(f"{path}: no such taxonomy file")
     try:
         document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as error:
+        raise TaxonomyError(f"{path}: not UTF-8 text ({error.reason} at byte {error.start}); a taxonomy is TOML") \
+            from error
     except tomllib.TOMLDecodeError as error:
         raise TaxonomyError(f"{path}: not TOML ({error})") from error
     return parse_taxonomy(document, str(path))

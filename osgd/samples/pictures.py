@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.compute as pc
 
-from osgd.contract.samples import Sample, decode_row
+from osgd.contract.samples import Sample, decode_row, metadata_vocabulary
 from osgd.contract.taxonomy import TASK_COLOURS, TASKS
 from osgd.samples.projection import rectangle_corners
 from osgd.store import ShardStore
@@ -34,8 +34,9 @@ def find_sample(store: ShardStore, sample_id: str) -> Sample:
         ids = store.read("samples", key, columns=["sample_id"])["sample_id"]
         matches = pc.equal(ids, sample_id)
         if pc.any(matches).as_py():
-            table = store.read("samples", key).filter(matches)
-            return decode_row(table.to_pylist()[0])
+            table = store.read("samples", key)
+            vocabulary = metadata_vocabulary(table.schema.metadata, f"samples shard {key}")
+            return decode_row(table.filter(matches).to_pylist()[0], vocabulary)
     raise KeyError(f"no sample {sample_id!r} in {store.root / 'samples'} ({len(keys)} shards searched)")
 
 

@@ -251,7 +251,7 @@ class GraspDetector(nn.Module):
         -------
         dict of scalar tensors or list of dict
             Train mode: the losses, ``LOSS_KEYS``. Eval mode, per image: ``boxes`` (N, 4), ``labels`` (N,),
-            ``scores`` (N,), ``grasps`` (N, K, 5), ``grasp_stability`` (N, K), ``grasp_task_probs`` (N, K, 12).
+            ``scores`` (N,), ``grasps`` (N, K, 5), ``grasp_stability`` (N, K), ``grasp_task_probs`` (N, K, T).
         """
         image_list = batch_images(images)
         features = self.backbone(image_list.tensors)

@@ -3,7 +3,7 @@
 Input (R, C, H, W) features: pooled RoIs, 7 x 7 (the "roi" branch of TOG and TOG-CRFs), or whole FPN
 maps (the "image" branch of FCGN + Task). Outputs per candidate, 4 per cell, cell (i, j) angle a being
 candidate (i * W + j) * 4 + a (the order of ``togcrf.anchors``): regression (R, H * W * 4, 5), stability
-logits (R, H * W * 4, 2), task logits (R, H * W * 4, 12): 196 candidates per RoI.
+logits (R, H * W * 4, 2), task logits (R, H * W * 4, T) for the vocabulary's T tasks: 196 candidates per RoI.
 """
 
 from __future__ import annotations

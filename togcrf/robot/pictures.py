@@ -14,6 +14,7 @@ the hand dark grey.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -100,8 +101,10 @@ def _colour(depth: np.ndarray, mask: np.ndarray, count: int, with_hand: bool) ->
 
 
 def failure_picture(path: Path, trial: Trial, policy: str, observation: Observation, rectangle: np.ndarray | None,
-                    execution: Execution | None, reason: str, state: np.ndarray, detections: Any = None) -> Path:
-    """Draw a failed trial (see the module text) into a PNG; ``detections`` (a checkpoint's) dashed in yellow."""
+                    execution: Execution | None, reason: str, state: np.ndarray, detections: Any = None,
+                    categories: Sequence[str] = CATEGORIES) -> Path:
+    """Draw a failed trial (see the module text) into a PNG; ``detections`` (a checkpoint's, named by its
+    ``categories``) dashed in yellow."""
 
     figure = Figure(figsize=(11, 5.6), dpi=90)
     left, right = figure.subplots(1, 2)
@@ -116,7 +119,7 @@ def failure_picture(path: Path, trial: Trial, policy: str, observation: Observat
         left.text(x1, y1 - 2 - 9 * (index % 2), obj["category"], color="white", fontsize=7,
                   bbox={"facecolor": colour, "edgecolor": "none", "pad": 1})
     if detections is not None:
-        _draw_detections(left, detections)
+        _draw_detections(left, detections, categories)
     for grasp in observation.sample["grasps"]:
         if grasp["task"] == trial.task:
             corners = rectangle_corners(np.asarray(grasp["rectangle"]))
@@ -139,13 +142,14 @@ def failure_picture(path: Path, trial: Trial, policy: str, observation: Observat
     return path
 
 
-def _draw_detections(axes: Any, detections: Any) -> None:
-    """A checkpoint's detections: dashed yellow boxes, category and score at the bottom-left corner."""
+def _draw_detections(axes: Any, detections: Any, categories: Sequence[str]) -> None:
+    """A checkpoint's detections: dashed yellow boxes, category (of the model's ``categories``) and score at the
+    bottom-left corner."""
     for box, category, score in zip(detections.boxes, detections.categories, detections.scores, strict=True):
         x1, y1, x2, y2 = box
         axes.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor="yellow", linewidth=1.0,
                                      linestyle="--"))
-        axes.text(x1, y2 + 8, f"{CATEGORIES[int(category)]} {score:.2f}", color="black", fontsize=6,
+        axes.text(x1, y2 + 8, f"{categories[int(category)]} {score:.2f}", color="black", fontsize=6,
                   bbox={"facecolor": "yellow", "edgecolor": "none", "pad": 1})
 
 

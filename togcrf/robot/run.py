@@ -147,8 +147,10 @@ def _draw_failure(world: World, trial: Trial, policy: Policy, observation: Obser
                   execution: Any, reason: str, spec: RunSpec, renderer: Any) -> str:
     relative = Path("failures") / policy.name.replace(":", "_").replace("/", "_") / f"{trial.name}.png"
     state = render_state(world, observation, execution, renderer)
+    model = getattr(policy, "model", None)
+    named = {} if model is None else {"categories": model.vocabulary["categories"]}
     failure_picture(spec.out / relative, trial, policy.name, observation, choice.rectangle, execution, reason, state,
-                    getattr(policy, "last_detections", None))
+                    getattr(policy, "last_detections", None), **named)
     return str(relative)
 
 
