@@ -69,6 +69,7 @@ def test_the_refuser_refuses(tmp_path: Path) -> None:
 GENERATOR_ONLY = ("pybullet", "coacd", "embreex", "trimesh.ray")
 
 
+@pytest.mark.slow
 def test_the_generator_builds_the_golden_pipeline_without_torch(tmp_path: Path) -> None:
     env, log = _refusing_env(tmp_path, ("torch", "torchvision"))
     data = tmp_path / "data"
