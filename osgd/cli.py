@@ -32,6 +32,7 @@ from rich.text import Text
 from osgd.config import ConfigError, PipelineConfig, config_to_toml
 from osgd.contract.files import is_uri
 from osgd.contract.process_exit import run_then_exit
+from osgd.contract.taxonomy import TABLE1, Taxonomy, TaxonomyError, read_taxonomy
 from osgd.errors import describe
 from osgd.executor import BACKENDS, Executor, ExecutorError, SerialExecutor, make_executor
 from osgd.pipeline import (
@@ -366,6 +367,34 @@ def show_config(config: ConfigOption, set_: SetOption = None) -> None:
     defaults filled in, each with its meaning. Valid TOML: save it to start a new pipeline."""
     pipeline = _load(config, set_)
     typer.echo(config_to_toml(pipeline), nl=False)
+
+
+def _taxonomy_table(taxonomy: Taxonomy) -> Table:
+    table = Table(title=escape(f"taxonomy {taxonomy.name}: {len(taxonomy.categories)} categories, "
+                                f"{len(taxonomy.tasks)} tasks"))
+    for column in ("category", "task", "held for the task", "left clear", "length, m", "density, kg/m^3"):
+        table.add_column(column)
+    for category in taxonomy.categories:
+        table.add_row(category.name, category.task, ", ".join(category.handle), ", ".join(category.working),
+                      f"{category.length_range[0]:g}-{category.length_range[1]:g}", f"{category.density:g}")
+    return table
+
+
+@app.command("taxonomy")
+def show_taxonomy(
+    file: Annotated[Path | None, typer.Argument(help="A taxonomy TOML to check (default: the packaged Table I).")
+                    ] = None,
+) -> None:
+    """Check a taxonomy file (categories, parts, tasks and their rules) and print its categories; every mistake
+    on a line of its own (exit 2). Without FILE: the packaged Table I (osgd/contract/table1.toml)."""
+    try:
+        taxonomy = TABLE1 if file is None else read_taxonomy(file)
+    except (TaxonomyError, FileNotFoundError) as error:
+        for line in str(error).splitlines():
+            console.print(Text.assemble(("error: ", "red"), line), highlight=False, soft_wrap=True)
+        raise typer.Exit(2) from error
+    Console().print(_taxonomy_table(taxonomy))
+    _say(f"tasks in logit order: {', '.join(taxonomy.tasks)}; parts: {', '.join(taxonomy.parts)}")
 
 
 _STATUS_CODES_HELP = ", ".join(f"{code} {kind}" for kind, code in STATUS_EXIT_CODES.items())

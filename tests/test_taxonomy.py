@@ -7,7 +7,9 @@ from importlib import resources
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
 
+from osgd.cli import app
 from osgd.contract import taxonomy
 from osgd.contract.taxonomy import TABLE1, TaxonomyError, parse_taxonomy, read_taxonomy
 from osgd.grasps.labels import DEFAULT_RULES
@@ -123,3 +125,16 @@ def test_a_missing_or_broken_file_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "latin.toml").write_bytes('name = "caf\xe9"'.encode("latin-1"))
     with pytest.raises(TaxonomyError, match=r"latin\.toml: not UTF-8 text"):
         read_taxonomy(tmp_path / "latin.toml")
+
+
+def test_osgd_taxonomy_checks_a_file_and_names_each_mistake(tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["taxonomy"])
+    assert result.exit_code == 0 and "taxonomy table1: 10 categories, 12 tasks" in result.output
+    text = resources.files("osgd.contract").joinpath(taxonomy.TABLE1_FILE).read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('working = ["head"]', 'working = ["hed"]').replace("density = 900.0", "density = 0"))
+    result = CliRunner().invoke(app, ["taxonomy", str(bad)])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 2, result.output
+    assert "categories['hammer'].working: unknown part 'hed'" in lines[0]
+    assert "categories['pen'].density: expected a finite number > 0, got 0" in lines[1]
