@@ -27,6 +27,7 @@ from typer.testing import CliRunner
 from osgd.contract.samples import sample_shards, samples_vocabulary, shard_vocabulary
 from osgd.contract.shards import file_sha256
 from osgd.contract.taxonomy import VOCABULARY
+from osgd.samples.export import export
 from osgd.store import ShardStore, canonical_json
 from togcrf.checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
 from togcrf.cli import app
@@ -158,6 +159,24 @@ def test_the_detector_takes_the_vocabulary_of_its_data(samples_dir: Path, tmp_pa
     assert result.exit_code == 1 and "labelled with another vocabulary" in result.output
     assert "categories ['knife'" in result.output and "'pliers'] against ['knife'" in result.output
     assert "'pliers', 'mug']" in result.output  # the data's categories, then the model's
+
+
+def test_exports_name_the_categories_and_tasks_of_their_samples_vocabulary(samples_dir: Path, tmp_path: Path) -> None:
+    for path in sample_shards(samples_dir, "synthetic"):
+        write_foreign_vocabulary(path, a_larger_vocabulary())
+    store = ShardStore(samples_dir)
+    export(store, tmp_path / "coco", "coco", "synthetic")
+    document = json.loads((tmp_path / "coco" / "train" / "train.json").read_text())
+    assert document["categories"][-1] == {"id": 11, "name": "mug"}
+    tasks = {grasp[-1] for annotation in document["annotations"] for grasp in annotation["grasps"]}
+    assert "hand over" in tasks and tasks <= set(a_larger_vocabulary()["tasks"])
+    export(store, tmp_path / "osgd", "osgd", "synthetic")
+    grasp_files = (tmp_path / "osgd" / "train").glob("*[0-9].txt")
+    lines = [line for path in grasp_files for line in path.read_text().splitlines()]
+    assert lines and any(line.endswith(" hand_over") for line in lines)
+    export(store, tmp_path / "hf", "hf", "synthetic")
+    written = pq.read_schema(next((tmp_path / "hf" / "data").glob("train-*.parquet")))
+    assert json.loads(written.metadata[b"osgd.vocabulary"]) == a_larger_vocabulary()
 
 
 def test_training_from_weights_of_another_vocabulary_is_refused(samples_dir: Path, tmp_path: Path) -> None:

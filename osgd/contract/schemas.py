@@ -21,13 +21,12 @@ The helpers at the end turn these columns into numpy arrays and back.
 
 from __future__ import annotations
 
-import json
 from typing import Final
 
 import numpy as np
 import pyarrow as pa
 
-from osgd.contract.taxonomy import VOCABULARY
+from osgd.contract.taxonomy import VOCABULARY, vocabulary_json
 
 #: Bumped whenever a table's columns change meaning or type.
 SCHEMA_VERSION: Final[int] = 1
@@ -190,7 +189,7 @@ SAMPLES = pa.schema(
                                   "angle of the closing direction to the image x axis, rad, in [-pi/2, pi/2); "
                                   "position/quaternion: the 3-D grasp in the camera frame"}),
     ],
-    metadata={b"osgd.vocabulary": json.dumps(VOCABULARY, separators=(",", ":")).encode()},
+    metadata={b"osgd.vocabulary": vocabulary_json(VOCABULARY)},
 )
 
 #: Every table by name; the stage framework looks schemas up here.

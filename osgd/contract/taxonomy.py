@@ -31,6 +31,7 @@ A taxonomy file holds (units: metres, kg, kg/m^3):
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -299,9 +300,14 @@ CATEGORY_TASK: Final[dict[str, str]] = {category.name: category.task for categor
 #: The grasp requirement of each task, verbatim from Table I.
 TASK_REQUIREMENT: Final[dict[str, str]] = dict(zip(TABLE1.tasks, TABLE1.requirements, strict=True))
 
-#: The file name stem of each task in the original OSGD annotation layout
-#: (``<name>/annotations/<stem>.npy``).
-TASK_FILE_STEM: Final[dict[str, str]] = {task: task.replace(" ", "_") for task in TASKS}
+def task_file_stem(task: str) -> str:
+    """The file name stem of a task in the original OSGD annotation layout (``<name>/annotations/<stem>.npy``)
+    and in its text format: spaces as underscores (``hand over`` -> ``hand_over``)."""
+    return task.replace(" ", "_")
+
+
+#: :func:`task_file_stem` of each task of Table I.
+TASK_FILE_STEM: Final[dict[str, str]] = {task: task_file_stem(task) for task in TASKS}
 
 #: Object part names used for per-face part labels. Index -1 means unknown.
 PARTS: Final[tuple[str, ...]] = TABLE1.parts
@@ -339,6 +345,11 @@ def task_from_file_stem(stem: str) -> str:
 #: order. Samples shards record it (``osgd.vocabulary`` in their Parquet metadata) and so do
 #: checkpoints, so that a model never reads data labelled with another vocabulary.
 VOCABULARY: Final[dict[str, tuple[str, ...]]] = {"categories": CATEGORIES, "tasks": TASKS}
+
+
+def vocabulary_json(vocabulary: Mapping[str, Sequence[str]]) -> bytes:
+    """A vocabulary as Parquet metadata records it (``osgd.vocabulary``): compact JSON."""
+    return json.dumps({field: list(names) for field, names in vocabulary.items()}, separators=(",", ":")).encode()
 
 
 def vocabulary_difference(recorded: Mapping[str, Sequence[str]], expected: Mapping[str, Sequence[str]]) -> str | None:

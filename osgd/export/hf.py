@@ -38,9 +38,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from osgd.contract.files import Location
-from osgd.contract.samples import sample_shards
+from osgd.contract.samples import sample_shards, samples_vocabulary
 from osgd.contract.schemas import SAMPLES, SCHEMA_VERSION
 from osgd.contract.shards import ShardReader
+from osgd.contract.taxonomy import vocabulary_json
 
 #: The PNG columns written as ``datasets.Image`` features, and what decoding one gives.
 IMAGE_COLUMNS: dict[str, str] = {
@@ -74,8 +75,9 @@ def column_descriptions() -> dict[str, str]:
     return descriptions
 
 
-def export_schema() -> pa.Schema:
-    """The schema of the exported files: the samples table, PNG columns as Image structs, with descriptions."""
+def export_schema(vocabulary: Mapping[str, Sequence[str]] | None = None) -> pa.Schema:
+    """The schema of the exported files: the samples table, PNG columns as Image structs, with descriptions;
+    ``vocabulary``, the samples' (default: the schema's, Table I), in its metadata."""
     descriptions = column_descriptions()
     fields = [
         # An Image column is nullable, as datasets writes it: else it does not take the metadata's feature.
@@ -88,9 +90,9 @@ def export_schema() -> pa.Schema:
             "description": "osgd samples; columns: " + "; ".join(f"{k}: {v}" for k, v in descriptions.items())}
     metadata = {b"huggingface": json.dumps({"info": info}).encode(),
                 b"osgd.schema_version": str(SCHEMA_VERSION).encode()}
-    vocabulary = (SAMPLES.metadata or {}).get(b"osgd.vocabulary")
-    if vocabulary:
-        metadata[b"osgd.vocabulary"] = vocabulary
+    recorded = (SAMPLES.metadata or {}).get(b"osgd.vocabulary") if vocabulary is None else vocabulary_json(vocabulary)
+    if recorded:
+        metadata[b"osgd.vocabulary"] = recorded
     return pa.schema(fields, metadata=metadata)
 
 
@@ -194,7 +196,7 @@ def export_hf(store: ShardReader, out_dir: str | Path, pipeline: str | None = No
                          "give `osgd export --format hf` a new or empty folder")
     paths = sample_shards(store.root, pipeline)
     name, manifest = _source_manifest(store, pipeline)
-    schema = export_schema()
+    schema = export_schema(samples_vocabulary(paths))
     (out / "data").mkdir(parents=True, exist_ok=True)
     writer = _SplitWriter(out / "data", schema, rows_per_file)
     for split, table in _split_tables(paths, schema):

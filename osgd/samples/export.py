@@ -21,7 +21,8 @@ millimetres (0 = no reading), beside its annotations, under
     stored grasp is positive, so there is no ``cneg`` file. The depth image is
     ``<sample_id>d.png``.
 ``coco`` (COCO object detection JSON)
-    ``<split>.json`` with ``images`` (file name, size), ``categories`` (id =
+    ``<split>.json`` with ``images`` (file name, size), ``categories`` (those of
+    the samples' vocabulary, id = their index + 1: Table I's
     ``taxonomy.CATEGORY_INDEX + 1``) and ``annotations``: ``bbox = [x, y,
     width, height]`` where ``x, y`` are the box's first column and row and
     ``width = x2 - x1 + 1`` pixels (the box covers whole pixels), plus the
@@ -32,13 +33,14 @@ millimetres (0 = no reading), beside its annotations, under
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from osgd.contract.encoding import encode_depth
-from osgd.contract.samples import Sample, iter_samples
-from osgd.contract.taxonomy import CATEGORIES, CATEGORY_INDEX, TASK_FILE_STEM, TASKS
+from osgd.contract.samples import Sample, iter_samples, sample_shards, samples_vocabulary
+from osgd.contract.taxonomy import task_file_stem
 from osgd.samples.projection import rectangle_corners
 from osgd.store import ShardStore
 
@@ -50,7 +52,7 @@ def _write_depth(sample: Sample, path: Path) -> None:
     path.write_bytes(encode_depth(sample.depth))
 
 
-def _osgd_files(sample: Sample, folder: Path) -> None:
+def _osgd_files(sample: Sample, folder: Path, tasks: Sequence[str]) -> None:
     _write_depth(sample, folder / f"{sample.sample_id}_depth.png")
     object_lines = [
         f"{box[0]:.1f} {box[1]:.1f} {box[2]:.1f} {box[3]:.1f} {category}"
@@ -62,7 +64,7 @@ def _osgd_files(sample: Sample, folder: Path) -> None:
         rectangle_corners(sample.grasp_rectangles), sample.grasp_objects, sample.grasp_tasks, strict=True
     ):
         points = " ".join(f"{value:.3f}" for value in corners.reshape(-1))
-        grasp_lines.append(f"{points} {int(owner)} {TASK_FILE_STEM[TASKS[task]]}")
+        grasp_lines.append(f"{points} {int(owner)} {task_file_stem(tasks[task])}")
     (folder / f"{sample.sample_id}.txt").write_text("".join(line + "\n" for line in grasp_lines))
 
 
@@ -72,7 +74,8 @@ def _cornell_files(sample: Sample, folder: Path) -> None:
     (folder / f"{sample.sample_id}cpos.txt").write_text("".join(line + "\n" for line in lines))
 
 
-def _coco_entries(sample: Sample, image_id: int, first_annotation: int, file_name: str) -> tuple[dict, list[dict]]:
+def _coco_entries(sample: Sample, image_id: int, first_annotation: int, file_name: str,
+                  vocabulary: Mapping[str, Sequence[str]]) -> tuple[dict, list[dict]]:
     image = {"id": image_id, "file_name": file_name, "width": int(sample.depth.shape[1]),
              "height": int(sample.depth.shape[0]), "sample_id": sample.sample_id, "scene_id": sample.scene_id}
     annotations = []
@@ -80,13 +83,14 @@ def _coco_entries(sample: Sample, image_id: int, first_annotation: int, file_nam
         x1, y1, x2, y2 = (float(value) for value in box)
         width, height = x2 - x1 + 1, y2 - y1 + 1
         grasps = [
-            [*(round(float(value), 4) for value in rectangle), TASKS[task]]
+            [*(round(float(value), 4) for value in rectangle), vocabulary["tasks"][task]]
             for rectangle, owner, task in zip(
                 sample.grasp_rectangles, sample.grasp_objects, sample.grasp_tasks, strict=True)
             if owner == row
         ]
         annotations.append({
-            "id": first_annotation + row, "image_id": image_id, "category_id": CATEGORY_INDEX[category] + 1,
+            "id": first_annotation + row, "image_id": image_id,
+            "category_id": list(vocabulary["categories"]).index(category) + 1,
             "bbox": [x1, y1, width, height], "area": width * height, "iscrowd": 0,
             "visible_fraction": round(float(sample.visible_fraction[row]), 4), "grasps": grasps,
         })
@@ -124,6 +128,7 @@ def export(store: ShardStore, out_dir: str | Path, format: str = "osgd", pipelin
 
         return export_hf(store, out_dir, pipeline)
     out = Path(out_dir)
+    vocabulary = samples_vocabulary(sample_shards(store.root, pipeline))
     counts: dict[str, int] = {}
     coco: dict[str, dict] = {}
     next_annotation = 1
@@ -132,7 +137,7 @@ def export(store: ShardStore, out_dir: str | Path, format: str = "osgd", pipelin
         folder.mkdir(parents=True, exist_ok=True)
         counts[sample.split] = counts.get(sample.split, 0) + 1
         if format == "osgd":
-            _osgd_files(sample, folder)
+            _osgd_files(sample, folder, vocabulary["tasks"])
         elif format == "cornell":
             _cornell_files(sample, folder)
         else:
@@ -141,9 +146,11 @@ def export(store: ShardStore, out_dir: str | Path, format: str = "osgd", pipelin
             document = coco.setdefault(sample.split, {
                 "info": {"description": "osgd samples (depth, 16-bit PNG, millimetres)"},
                 "images": [], "annotations": [],
-                "categories": [{"id": index + 1, "name": name} for index, name in enumerate(CATEGORIES)],
+                "categories": [{"id": index + 1, "name": name}
+                               for index, name in enumerate(vocabulary["categories"])],
             })
-            image, annotations = _coco_entries(sample, len(document["images"]) + 1, next_annotation, file_name)
+            image, annotations = _coco_entries(sample, len(document["images"]) + 1, next_annotation, file_name,
+                                               vocabulary)
             next_annotation += len(annotations)
             document["images"].append(image)
             document["annotations"].extend(annotations)
