@@ -48,8 +48,9 @@ CHECKPOINT_FILE = "checkpoint.pt"
 CONFIG_ADDED_LATER = {"depth_reference": "table"}
 
 
-def current_vocabulary() -> dict[str, list[str]]:
-    """The vocabulary of this code (:data:`osgd.contract.taxonomy.VOCABULARY`) as JSON lists."""
+def table1_vocabulary() -> dict[str, list[str]]:
+    """Table I's vocabulary (:data:`osgd.contract.taxonomy.VOCABULARY`) as JSON lists: that of a checkpoint
+    written before checkpoints recorded theirs."""
     return {field: list(names) for field, names in VOCABULARY.items()}
 
 
@@ -107,7 +108,7 @@ def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
     if not isinstance(checkpoint, dict) or "model" not in checkpoint or "config" not in checkpoint:
         raise ValueError(f"{path}: not a togcrf checkpoint (needs 'model' and 'config')")
     checkpoint["config"] = {**CONFIG_ADDED_LATER, **checkpoint["config"]}
-    checkpoint.setdefault("vocabulary", current_vocabulary())
+    checkpoint.setdefault("vocabulary", table1_vocabulary())
     checkpoint.setdefault("schema_version", SCHEMA_VERSION)
     return checkpoint
 
