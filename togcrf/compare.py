@@ -199,7 +199,7 @@ def _format_interval(bounds: tuple[float, float] | None) -> str:
 def format_comparison(result: dict[str, Any]) -> str:
     """:func:`compare`'s result as text: a block per test set, a line per metric."""
     baseline, candidate = result["baseline"], result["candidate"]
-    header = (f"{'metric':<42}{'RoIs':>6}{baseline['model'][:10]:>10}{candidate['model'][:10]:>11}{'diff':>8}"
+    header = (f"{'metric':<42}{'RoIs':>6}{baseline['model'][:10]:>11}{candidate['model'][:10]:>11}{'diff':>8}"
               f"{'paired 95 %':>18}{'Welch 95 %':>18}")
     lines = [f"{candidate['model']} minus {baseline['model']}, protocol {result['protocol']}, "
              f"{len(baseline['seeds'])} and {len(candidate['seeds'])} runs; "
@@ -208,7 +208,7 @@ def format_comparison(result: dict[str, Any]) -> str:
         lines += ["", f"test set {set_name}", header, "-" * len(header)]
         for metric, cell in metrics.items():
             rois = f"{cell['rois']:.0f}" if "rois" in cell else ""
-            lines.append(f"{metric[:41]:<42}{rois:>6}{cell['baseline']:>10.1f}{cell['candidate']:>11.1f}"
+            lines.append(f"{metric[:41]:<42}{rois:>6}{cell['baseline']:>11.1f}{cell['candidate']:>11.1f}"
                          f"{cell['difference']:>+8.1f}{_format_interval(cell['paired']):>18}"
                          f"{_format_interval(cell['unpaired']):>18}")
     lines.append("")
