@@ -147,8 +147,10 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
     if not baseline or not candidate:
         raise ValueError("give at least one evaluation in --baseline and one in --candidate")
     groups = {"baseline": baseline, "candidate": candidate}
-    values = {name: [flat_sets(document, protocol, str(path)) for path, document in group]
-              for name, group in groups.items()}
+    read = {name: [set_metrics(document, protocol, str(path)) for path, document in group]
+            for name, group in groups.items()}
+    values = {name: [{set_name: flat_metrics(metrics) for set_name, metrics in sets.items()} for sets in runs]
+              for name, runs in read.items()}
     seeds = {name: [evaluation_seed(path, document) for path, document in group] for name, group in groups.items()}
     order = paired_order(seeds["baseline"], seeds["candidate"])
     common = _common_keys([*values["baseline"], *values["candidate"]])
@@ -160,19 +162,13 @@ def compare(baseline: Sequence[tuple[Path, dict[str, Any]]], candidate: Sequence
                             for metric in metrics}
                  for set_name, metrics in common.items()}
     for set_name, metrics in test_sets.items():
-        counts = [stratum_rois(set_metrics(document, protocol)[set_name]) for group in groups.values()
-                  for _, document in group]  # every document read above
+        counts = [stratum_rois(sets[set_name]) for runs in read.values() for sets in runs]
         for metric, cell in metrics.items():
             if metric in counts[0]:
                 cell["rois"] = float(np.mean([count.get(metric, 0) for count in counts]))
     return {"protocol": protocol, "paired": order is not None, "test_sets": test_sets,
             **{name: {"model": _group_model(group), "seeds": seeds[name], "sources": [str(path) for path, _ in group]}
                for name, group in groups.items()}}
-
-
-def flat_sets(document: dict[str, Any], protocol: str, source: str) -> dict[str, dict[str, float]]:
-    """Test set -> :func:`flat_metrics` of one evaluation."""
-    return {name: flat_metrics(metrics) for name, metrics in set_metrics(document, protocol, source).items()}
 
 
 def _common_keys(runs: Sequence[dict[str, dict[str, float]]]) -> dict[str, list[str]]:
