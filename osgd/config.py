@@ -36,6 +36,7 @@ from typing import Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from osgd.contract.taxonomy import TABLE1, Taxonomy, TaxonomyError, read_taxonomy
 from osgd.errors import InputError
 from osgd.stage import StageParams
 
@@ -55,11 +56,15 @@ class PipelineSection(BaseModel):
         Names the manifest (``<data-dir>/manifests/<name>.json``).
     seed : int
         Every random draw of every stage derives from it.
+    taxonomy : str
+        A taxonomy file that extends Table I (``docs/taxonomy.md``), relative to the config's folder; empty
+        for the packaged Table I. Its content, not its path, enters the keys of the shards it labels.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     name: str
     seed: int = 0
+    taxonomy: str = ""
 
 
 class ExecutorSection(BaseModel):
@@ -101,12 +106,15 @@ class PipelineConfig:
         The file it came from.
     executor : ExecutorSection
         Where the items run (not part of any key or manifest).
+    taxonomy : Taxonomy
+        The categories, parts and tasks the stages label with (``[pipeline] taxonomy``; Table I by default).
     """
 
     pipeline: PipelineSection
     params: dict[str, StageParams]
     path: Path | None = None
     executor: ExecutorSection = field(default_factory=ExecutorSection)
+    taxonomy: Taxonomy = TABLE1
 
 
 _VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
@@ -276,6 +284,7 @@ def build_config(
         ExecutorSection, sections.get("executor", {}), origin, "executor", overridden.get("executor", {})
     )
 
+    taxonomy = _pipeline_taxonomy(pipeline.taxonomy, origin, base_dir)
     params: dict[str, StageParams] = {}
     for name, params_class in stage_params.items():
         values = dict(sections.get(name, {}))
@@ -287,7 +296,35 @@ def build_config(
                 if raw and not Path(raw).is_absolute():
                     values[field_name] = str((base_dir / raw).resolve())
         params[name] = _validate(params_class, values, origin, name, overridden.get(name, {}))
-    return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None, executor)
+    mistakes = [f"{origin}: [{name}] {mistake}" for name, section in params.items()
+                for mistake in section.taxonomy_mistakes(taxonomy)]
+    if mistakes:
+        raise ConfigError("\n".join(mistakes))
+    return PipelineConfig(pipeline, params, Path(origin) if origin != "<config>" else None, executor, taxonomy)
+
+
+def _pipeline_taxonomy(path: str, origin: str, base_dir: Path | None) -> Taxonomy:
+    """The taxonomy ``[pipeline] taxonomy`` names (relative to ``base_dir``), Table I when empty.
+
+    Raises
+    ------
+    ConfigError
+        If the file is not there, has mistakes (a line each) or does not extend Table I.
+    """
+    if not path:
+        return TABLE1
+    file = Path(path) if Path(path).is_absolute() or base_dir is None else base_dir / path
+    try:
+        taxonomy = read_taxonomy(file)
+    except FileNotFoundError as error:
+        raise ConfigError(f"{origin}: [pipeline] taxonomy = {path!r}: {error}") from error
+    except TaxonomyError as error:
+        raise ConfigError(str(error)) from error
+    if not taxonomy.extends_table1:
+        raise ConfigError(f"{origin}: [pipeline] taxonomy = {path!r}: {file} does not extend Table I; the "
+                          'generator labels Table I\'s tools as Table I does: give the file extends = "table1" '
+                          "and list only what it adds (docs/taxonomy.md)")
+    return taxonomy
 
 
 #: The largest pipeline config read, bytes (a config is a few kB; more is a file given by mistake).
@@ -442,6 +479,8 @@ def config_to_toml(config: PipelineConfig) -> str:
     :func:`build_config` gives an equal config.
     """
     lines = ["[pipeline]", f"name = {_toml_value(config.pipeline.name)}", f"seed = {config.pipeline.seed}"]
+    if config.pipeline.taxonomy:
+        lines.append(f"taxonomy = {_toml_value(config.pipeline.taxonomy)}")
     for section, values in (*config.params.items(), ("executor", config.executor)):
         lines += ["", f"[{section}]", *_section_lines(values)]
     return "\n".join(lines) + "\n"

@@ -17,6 +17,7 @@ from typing import Any
 
 from osgd.config import PipelineConfig, load_config
 from osgd.contract.schemas import SCHEMA_VERSION
+from osgd.contract.taxonomy import TABLE1
 from osgd.errors import describe
 from osgd.executor import Executor
 from osgd.stage import PlannedShard, Stage, StageReport, run_stage
@@ -84,7 +85,7 @@ def _plan_stage(
     """The planned shards of one stage, given those of the stages before it, less ``leave_out`` item ids."""
     upstream = {table: planned[table] for table in stage.inputs}
     try:
-        shards = stage.planned(config.params[stage.name], config.pipeline.seed, upstream)
+        shards = stage.planned(config.params[stage.name], config.pipeline.seed, upstream, config.taxonomy)
     except (OSError, ValueError, KeyError) as error:
         file, cause = describe(error)
         raise PlanError(f"stage {stage.name} cannot plan its work: {file + ': ' if file else ''}{cause}") from error
@@ -250,15 +251,15 @@ def _run_in_order(
         planned[stage.name] = [shard for shard in shards if shard.item.item_id not in failed_ids]
         extra = stage.manifest_extra(planned[stage.name], store) if planned[stage.name] else {}
         recorded[stage.name] = _manifest_stage_entry(stage, config, report, len(shards), extra)
-        store.write_manifest(
-            config.pipeline.name,
-            {
-                "pipeline": config.pipeline.name,
-                "seed": config.pipeline.seed,
-                "schema_version": SCHEMA_VERSION,
-                "stages": recorded,
-            },
-        )
+        store.write_manifest(config.pipeline.name, _manifest(config, recorded))
+
+
+def _manifest(config: PipelineConfig, recorded: Mapping[str, Any]) -> dict[str, Any]:
+    """The manifest document; it names a taxonomy other than Table I (its name and :attr:`Taxonomy.digest`)."""
+    manifest: dict[str, Any] = {"pipeline": config.pipeline.name, "seed": config.pipeline.seed}
+    if config.taxonomy != TABLE1:
+        manifest["taxonomy"] = {"name": config.taxonomy.name, "sha256": config.taxonomy.digest}
+    return {**manifest, "schema_version": SCHEMA_VERSION, "stages": recorded}
 
 
 @dataclass(frozen=True)

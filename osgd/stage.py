@@ -32,6 +32,7 @@ import pyarrow as pa
 from pydantic import BaseModel, ConfigDict
 
 from osgd.contract.shards import ShardError, ShardRecord
+from osgd.contract.taxonomy import TABLE1, Taxonomy, taxonomy_of_document
 from osgd.executor import Executor, SerialExecutor, TaskFailure
 from osgd.store import ShardStore, shard_key
 
@@ -39,6 +40,14 @@ log = logging.getLogger(__name__)
 
 
 _Read = TypeVar("_Read")
+
+#: The payload key of an item's taxonomy (:meth:`Stage.planned`).
+TAXONOMY_KEY = "taxonomy"
+
+
+def item_taxonomy(item: WorkItem) -> Taxonomy:
+    """The taxonomy an item labels with: the one in its payload, else Table I."""
+    return taxonomy_of_document(item.payload.get(TAXONOMY_KEY))
 
 #: :func:`read_once_per_worker`'s last value per name, with the data dir and shard keys it was read from.
 _WORKER_READS: dict[str, tuple[tuple[str, ...], Any]] = {}
@@ -86,6 +95,10 @@ class StageParams(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def taxonomy_mistakes(self, taxonomy: Taxonomy) -> list[str]:
+        """What in these parameters the pipeline's taxonomy does not know (a category, a part), a line each."""
+        return []
 
     def key_dict(self) -> dict[str, Any]:
         """The parameters as JSON-able values, location fields and omitted defaults left out."""
@@ -154,6 +167,9 @@ class Stage(abc.ABC):
     inputs: ClassVar[tuple[str, ...]] = ()
     Params: ClassVar[type[StageParams]]
     description: ClassVar[str] = ""
+    #: Whether the stage's rows depend on the taxonomy (categories, parts, tasks and their rules); its items
+    #: then carry a taxonomy other than Table I in their payload (:func:`item_taxonomy`), and so in their keys.
+    uses_taxonomy: ClassVar[bool] = False
 
     @abc.abstractmethod
     def plan(
@@ -188,10 +204,15 @@ class Stage(abc.ABC):
         return {}
 
     def planned(
-        self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]]
+        self, params: StageParams, seed: int, upstream: Mapping[str, Sequence[PlannedShard]],
+        taxonomy: Taxonomy = TABLE1,
     ) -> list[PlannedShard]:
-        """:meth:`plan` with the key of each item."""
+        """:meth:`plan` with the key of each item; a taxonomy other than Table I goes into the payload of each
+        item of a stage that :attr:`uses_taxonomy` (Table I's keys stay as they were before taxonomies)."""
         items = self.plan(params, seed, upstream)
+        if self.uses_taxonomy and taxonomy != TABLE1:
+            document = taxonomy.document()
+            items = [dataclasses.replace(item, payload={**item.payload, TAXONOMY_KEY: document}) for item in items]
         seen: set[str] = set()
         shards = []
         for item in items:

@@ -213,6 +213,11 @@ def _remove_if_unheld(path: Path) -> bool:
         os.close(handle)
 
 
+#: Metadata a table may set for itself over its schema's: the vocabulary of samples labelled with a
+#: pipeline's own taxonomy (``osgd.contract.schemas.samples_schema``).
+TABLE_OWN_METADATA = frozenset({b"osgd.vocabulary"})
+
+
 def table_to_parquet_bytes(table: pa.Table, table_name: str, key: str) -> bytes:
     """Serialise ``table`` with the osgd metadata; deterministic bytes.
 
@@ -222,6 +227,7 @@ def table_to_parquet_bytes(table: pa.Table, table_name: str, key: str) -> bytes:
         If the table does not match the schema of ``table_name``.
     """
     schema = TABLES[table_name]
+    own = {name: value for name, value in (table.schema.metadata or {}).items() if name in TABLE_OWN_METADATA}
     if not table.schema.equals(schema, check_metadata=False):
         try:
             table = table.select(schema.names).cast(schema)
@@ -230,7 +236,7 @@ def table_to_parquet_bytes(table: pa.Table, table_name: str, key: str) -> bytes:
                 f"rows for table {table_name!r} do not match its schema: {error}\n"
                 f"got: {table.schema}\nwant: {schema}"
             ) from error
-    metadata = dict(schema.metadata or {})
+    metadata = {**(schema.metadata or {}), **own}
     metadata.update(
         {
             b"osgd.schema_version": str(SCHEMA_VERSION).encode(),

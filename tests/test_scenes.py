@@ -16,8 +16,11 @@ from scipy.spatial.transform import Rotation
 from osgd.checks.calibration import _top_down_across_y
 from osgd.checks.params import ChecksStageParams
 from osgd.checks.trial import run_trial
+from osgd.config import ConfigError, build_config
+from osgd.contract.taxonomy import TABLE1
 from osgd.gripper import PANDA
 from osgd.physics import create_object_body, get_mesh_pose, physics_client, pybullet_module, worker_client
+from osgd.pipeline import stage_params_classes
 from osgd.scenes import drop as drop_module
 from osgd.scenes.drop import (
     ModelPool,
@@ -342,8 +345,10 @@ def test_category_weights_steer_the_draw() -> None:
 def test_bad_parameters_and_empty_models_are_clear_errors(tmp_path: Path) -> None:
     with pytest.raises(ValidationError, match="below min_objects"):
         ScenesStageParams(min_objects=4, max_objects=3)
-    with pytest.raises(ValidationError, match="unknown categories"):
-        ScenesStageParams(category_weights={"teapot": 1.0})
+    assert ScenesStageParams(category_weights={"teapot": 1.0}).taxonomy_mistakes(TABLE1) == [
+        f"category_weights names unknown categories ['teapot']; known: {list(TABLE1.category_names)}"]
+    with pytest.raises(ConfigError, match=r"\[scenes\] category_weights names unknown categories \['teapot'\]"):
+        build_config({"scenes": {"category_weights": {"teapot": 1.0}}}, stage_params_classes())
     store = ShardStore(tmp_path)
     write_models(store, [], MODELS_KEY)
     shard = _plan(ScenesStageParams(count=1))[0]

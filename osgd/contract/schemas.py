@@ -21,6 +21,7 @@ The helpers at the end turn these columns into numpy arrays and back.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Final
 
 import numpy as np
@@ -191,6 +192,11 @@ SAMPLES = pa.schema(
     ],
     metadata={b"osgd.vocabulary": vocabulary_json(VOCABULARY)},
 )
+
+def samples_schema(vocabulary: Mapping[str, Sequence[str]]) -> pa.Schema:
+    """:data:`SAMPLES` recording another vocabulary (``osgd.vocabulary``): that of a pipeline's taxonomy."""
+    return SAMPLES.with_metadata({**(SAMPLES.metadata or {}), b"osgd.vocabulary": vocabulary_json(vocabulary)})
+
 
 #: Every table by name; the stage framework looks schemas up here.
 TABLES: Final[dict[str, pa.Schema]] = {

@@ -24,18 +24,31 @@ A taxonomy file holds (units: metres, kg, kg/m^3):
 - ``[[categories]]``: ``name``; ``task``, the task it is the representative
   object of; the label rule of its grasps (``handle`` and ``working``, lists
   of parts; ``task_clearance`` and ``hand_over_clearance``, m, default 0.01;
-  ``split``, in (0, 1], default 0.5: see :mod:`osgd.grasps.labels`); and its
+  ``split``, in (0, 1], default 0.5: see :mod:`osgd.grasps.labels`); its
   physical properties (``length_range``, m; ``density``, kg/m^3;
-  ``mass_range``, kg; ``lateral_friction``: :mod:`osgd.models.categories`).
+  ``mass_range``, kg; ``lateral_friction``: :mod:`osgd.models.categories`);
+  and, for a category without a rule of its own in :mod:`osgd.models.parts`,
+  how users' meshes of it get their parts automatically: ``parts_rule =
+  "elongated"`` with ``working_end`` one of :data:`WORKING_ENDS` (the handle
+  and the working part along the tool's axis, the boundary where its
+  cross-section changes), or none (parts from the sidecar only).
+
+``extends = "table1"`` makes a file an extension of Table I: its ``parts``,
+``tasks`` and ``categories`` follow Table I's, in that order, so that Table I's
+tools keep their part, task and class indices. A pipeline names its taxonomy
+with ``[pipeline] taxonomy``; the generator takes extensions of Table I
+(:attr:`Taxonomy.extends_table1`), the detector any taxonomy.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any, Final
@@ -50,9 +63,17 @@ HAND_OVER: Final[str] = "hand over"
 #: Defaults of a category's label rule (see :mod:`osgd.grasps.labels`): clearances in metres, split a share.
 RULE_DEFAULTS: Final[dict[str, float]] = {"task_clearance": 0.01, "hand_over_clearance": 0.01, "split": 0.5}
 
+#: The automatic parts rule a category of a taxonomy may name (``parts_rule``; :mod:`osgd.models.parts`).
+ELONGATED: Final[str] = "elongated"
+#: Which end of an elongated tool works (``working_end``): the end of the larger or the smaller cross-section
+#: (the outer fifth of the length at each end), or the half of the larger or the smaller volume.
+WORKING_ENDS: Final[tuple[str, ...]] = ("wider", "narrower", "heavier", "lighter")
+#: What ``extends`` may name.
+EXTENDABLE: Final[tuple[str, ...]] = ("table1",)
+
 _CATEGORY_FIELDS: Final[frozenset[str]] = frozenset(
     {"name", "task", "handle", "working", "length_range", "density", "mass_range", "lateral_friction",
-     *RULE_DEFAULTS})
+     "parts_rule", "working_end", *RULE_DEFAULTS})
 
 
 @dataclass(frozen=True)
@@ -75,6 +96,11 @@ class CategorySpec:
     mass_range : (float, float)
         kg.
     lateral_friction : float
+    parts_rule : str
+        ``"elongated"`` (:data:`ELONGATED`) or ``""``: how a user's mesh of a category without a rule of its
+        own gets automatic parts (none: from its sidecar only).
+    working_end : str
+        One of :data:`WORKING_ENDS` for an elongated category, else ``""``.
     """
 
     name: str
@@ -88,6 +114,8 @@ class CategorySpec:
     density: float
     mass_range: tuple[float, float]
     lateral_friction: float
+    parts_rule: str = ""
+    working_end: str = ""
 
 
 @dataclass(frozen=True)
@@ -113,10 +141,47 @@ class Taxonomy:
         ValueError
             If the taxonomy has none of that name.
         """
+        found = self._categories.get(name)
+        if found is None:
+            raise ValueError(f"unknown category {name!r}; expected one of {list(self.category_names)}")
+        return found
+
+    @functools.cached_property
+    def _categories(self) -> dict[str, CategorySpec]:
+        return {category.name: category for category in self.categories}
+
+    @functools.cached_property
+    def part_index(self) -> dict[str, int]:
+        """Part index by name: the values of per-face part labels."""
+        return {name: index for index, name in enumerate(self.parts)}
+
+    @property
+    def vocabulary(self) -> dict[str, tuple[str, ...]]:
+        """The detector's classes and task logits, in order (:data:`VOCABULARY` for Table I)."""
+        return {"categories": self.category_names, "tasks": self.tasks}
+
+    @property
+    def extends_table1(self) -> bool:
+        """Whether Table I's parts, tasks and categories come first, in order, and unchanged."""
+        return (self.parts[: len(TABLE1.parts)] == TABLE1.parts and self.tasks[: len(TABLE1.tasks)] == TABLE1.tasks
+                and self.categories[: len(TABLE1.categories)] == TABLE1.categories)
+
+    def document(self) -> dict[str, Any]:
+        """The taxonomy as a TOML-like document that :func:`parse_taxonomy` reads back to an equal taxonomy."""
+        categories = []
         for category in self.categories:
-            if category.name == name:
-                return category
-        raise ValueError(f"unknown category {name!r}; expected one of {list(self.category_names)}")
+            entry = {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(category).items()}
+            categories.append({key: value for key, value in entry.items() if value != ""})
+        return {"name": self.name, "parts": list(self.parts),
+                "tasks": [{"name": task, "requirement": requirement}
+                          for task, requirement in zip(self.tasks, self.requirements, strict=True)],
+                "categories": categories}
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of :meth:`document` as compact, key-sorted JSON: what the taxonomy's shards depend on."""
+        text = json.dumps(self.document(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 class TaxonomyError(ValueError):
@@ -210,7 +275,41 @@ def _category(entry: dict[str, Any], where: str, parts: Sequence[str], tasks: Se
         length_range=_number_range(entry.get("length_range"), f"{where}.length_range", mistakes),
         density=_positive(entry.get("density"), f"{where}.density", mistakes),
         mass_range=_number_range(entry.get("mass_range"), f"{where}.mass_range", mistakes),
-        lateral_friction=_positive(entry.get("lateral_friction"), f"{where}.lateral_friction", mistakes))
+        lateral_friction=_positive(entry.get("lateral_friction"), f"{where}.lateral_friction", mistakes),
+        **_parts_rule(entry, where, mistakes))
+
+
+def _parts_rule(entry: Mapping[str, Any], where: str, mistakes: list[str]) -> dict[str, str]:
+    """``parts_rule`` and ``working_end`` of a category table, noting a rule or an end that is not known."""
+    rule, end = entry.get("parts_rule", ""), entry.get("working_end", "")
+    if rule not in ("", ELONGATED):
+        mistakes.append(f"{where}.parts_rule: expected {ELONGATED!r} (or no parts_rule: parts from the sidecar "
+                        f"only), got {rule!r}")
+    if rule == ELONGATED and end not in WORKING_ENDS:
+        mistakes.append(f"{where}.working_end: an elongated category names its working end, one of "
+                        f"{list(WORKING_ENDS)}; got {end!r}")
+    if rule != ELONGATED and end != "":
+        mistakes.append(f"{where}.working_end: only a category with parts_rule = {ELONGATED!r} has one")
+    return {"parts_rule": str(rule), "working_end": str(end)}
+
+
+def _extended(document: Mapping[str, Any], mistakes: list[str]) -> dict[str, Any]:
+    """The document with the taxonomy it ``extends`` put first (Table I's parts, tasks and categories)."""
+    base_name = document.get("extends")
+    document = {key: value for key, value in document.items() if key != "extends"}
+    if base_name is None:
+        return document
+    if base_name not in EXTENDABLE:
+        mistakes.append(f"extends: expected one of {list(EXTENDABLE)}, got {base_name!r}")
+        return document
+    base = _table1_document()
+    for key in ("parts", "tasks", "categories"):
+        added = document.get(key, [])
+        if not isinstance(added, list):
+            mistakes.append(f"{key}: expected a list, got {added!r}")
+            added = []
+        document[key] = [*base[key], *added]
+    return document
 
 
 def parse_taxonomy(document: Mapping[str, Any], source: str) -> Taxonomy:
@@ -223,8 +322,9 @@ def parse_taxonomy(document: Mapping[str, Any], source: str) -> Taxonomy:
         category without a task or rule, a task that no category serves, a value out of its range.
     """
     mistakes: list[str] = []
-    for key in sorted(set(document) - {"name", "parts", "tasks", "categories"}):
-        mistakes.append(f"unknown key {key!r}; allowed: categories, name, parts, tasks")
+    for key in sorted(set(document) - {"name", "extends", "parts", "tasks", "categories"}):
+        mistakes.append(f"unknown key {key!r}; allowed: categories, extends, name, parts, tasks")
+    document = _extended(document, mistakes)
     name = document.get("name", Path(source).stem)
     if not isinstance(name, str) or not name.strip():
         mistakes.append(f"name: expected a non-empty string, got {name!r}")
@@ -273,9 +373,13 @@ def read_taxonomy(path: str | Path) -> Taxonomy:
     return parse_taxonomy(document, str(path))
 
 
-def _table1() -> Taxonomy:
+def _table1_document() -> dict[str, Any]:
     text = resources.files(__package__).joinpath(TABLE1_FILE).read_text(encoding="utf-8")
-    return parse_taxonomy(tomllib.loads(text), f"osgd/contract/{TABLE1_FILE}")
+    return tomllib.loads(text)
+
+
+def _table1() -> Taxonomy:
+    return parse_taxonomy(_table1_document(), f"osgd/contract/{TABLE1_FILE}")
 
 
 #: Table I of the paper: the taxonomy of every built-in stage and model.
@@ -319,25 +423,27 @@ PART_INDEX: Final[dict[str, int]] = {name: index for index, name in enumerate(PA
 UNKNOWN_PART: Final[int] = -1
 
 
-def task_from_file_stem(stem: str) -> str:
+def task_from_file_stem(stem: str, tasks: Sequence[str] = TASKS) -> str:
     """Return the task named by an OSGD annotation file stem.
 
     Parameters
     ----------
     stem : str
         File name without extension, e.g. ``"hand_over"``.
+    tasks : sequence of str
+        The tasks it may name (default Table I's).
 
     Raises
     ------
     ValueError
-        If the stem names no task of Table I.
+        If the stem names none of them.
     """
-    for task, task_stem in TASK_FILE_STEM.items():
-        if task_stem == stem:
+    for task in tasks:
+        if task_file_stem(task) == stem:
             return task
     raise ValueError(
         f"annotation file stem {stem!r} names no task; expected one of "
-        f"{sorted(TASK_FILE_STEM.values())}"
+        f"{sorted(task_file_stem(task) for task in tasks)}"
     )
 
 
@@ -402,3 +508,15 @@ def task_palette(tasks: Sequence[str]) -> dict[str, tuple[float, float, float]]:
 
 #: One colour per task of Table I: the one palette of every picture that colours by task.
 TASK_COLOURS: Final[dict[str, tuple[float, float, float]]] = task_palette(TASKS)
+
+
+@functools.lru_cache(maxsize=8)
+def _parsed_document(text: str) -> Taxonomy:
+    return parse_taxonomy(json.loads(text), "the pipeline's taxonomy")
+
+
+def taxonomy_of_document(document: Mapping[str, Any] | None) -> Taxonomy:
+    """The taxonomy of a :meth:`Taxonomy.document` (parsed once per process), Table I for None."""
+    if document is None:
+        return TABLE1
+    return _parsed_document(json.dumps(document, sort_keys=True))

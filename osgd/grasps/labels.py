@@ -2,7 +2,8 @@
 
 The paper's Table I (``osgd.contract.taxonomy.TASK_REQUIREMENT``) states each task's
 grasp requirement in words. For a model whose faces carry part labels the
-requirement becomes one rule per category, all in :data:`DEFAULT_RULES`:
+requirement becomes one rule per category (:func:`default_rules` of a taxonomy; Table I's in
+:data:`DEFAULT_RULES`):
 
 - the category's **task** (hammer for a hammer, cut for a knife...) when
   every part the fingers touch is a ``handle`` part, no ``working`` part
@@ -43,16 +44,21 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
 
-from osgd.contract.taxonomy import CATEGORIES, CATEGORY_TASK, PART_INDEX, PARTS, RULE_DEFAULTS, TABLE1, UNKNOWN_PART
+from osgd.contract.taxonomy import HAND_OVER, NO_TASK, RULE_DEFAULTS, TABLE1, UNKNOWN_PART, Taxonomy
 from osgd.models.parts import principal_frame
 
 
 class LabelRule(BaseModel):
-    """How one category's grasps get their task label (see the module text)."""
+    """How one category's grasps get their task label (see the module text).
+
+    Its parts are names of a taxonomy's parts; the rule reads their indices, and its category's task, from
+    the taxonomy it is bound to (:meth:`bound`; Table I unless bound to another).
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+    _taxonomy: Taxonomy = PrivateAttr(default=TABLE1)
 
     handle: tuple[str, ...] = Field(
         description="parts held for the category's task; hand over must leave them clear"
@@ -77,51 +83,87 @@ class LabelRule(BaseModel):
     )
 
     @property
+    def taxonomy(self) -> Taxonomy:
+        """The taxonomy the rule's parts and tasks are of."""
+        return self._taxonomy
+
+    def bound(self, taxonomy: Taxonomy) -> LabelRule:
+        """The same rule on the parts and tasks of ``taxonomy``.
+
+        Raises
+        ------
+        ValueError
+            If the taxonomy has not some of its parts.
+        """
+        unknown = self.unknown_parts(taxonomy)
+        if unknown:
+            raise ValueError(f"unknown part(s) {unknown}; parts are {list(taxonomy.parts)}")
+        rule = self.model_copy()
+        rule._taxonomy = taxonomy
+        return rule
+
+    def unknown_parts(self, taxonomy: Taxonomy) -> list[str]:
+        """The rule's parts that the taxonomy has not."""
+        return [part for part in (*self.handle, *self.working) if part not in taxonomy.part_index]
+
+    def part(self, name: str) -> int:
+        """The index of a part."""
+        return self._taxonomy.part_index[name]
+
+    @property
     def handle_parts(self) -> frozenset[int]:
-        """``taxonomy.PARTS`` indices of :attr:`handle`."""
-        return frozenset(PART_INDEX[part] for part in self.handle)
+        """Part indices of :attr:`handle`."""
+        return frozenset(self.part(part) for part in self.handle)
 
     @property
     def working_parts(self) -> frozenset[int]:
-        """``taxonomy.PARTS`` indices of :attr:`working`."""
-        return frozenset(PART_INDEX[part] for part in self.working)
+        """Part indices of :attr:`working`."""
+        return frozenset(self.part(part) for part in self.working)
 
     @property
     def by_position(self) -> bool:
         """Whether the place along the tool counts (``split`` below 1)."""
         return self.split < 1.0
 
-    @field_validator("handle", "working")
-    @classmethod
-    def _known_parts(cls, parts: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = [part for part in parts if part not in PART_INDEX]
-        if unknown:
-            raise ValueError(f"unknown part(s) {unknown}; parts are {list(PARTS)}")
-        return parts
+
+def default_rules(taxonomy: Taxonomy) -> dict[str, LabelRule]:
+    """The rule of each category of a taxonomy, as its file states it, bound to it."""
+    return {
+        category.name: LabelRule(handle=category.handle, working=category.working,
+                                 task_clearance=category.task_clearance,
+                                 hand_over_clearance=category.hand_over_clearance, split=category.split).bound(taxonomy)
+        for category in taxonomy.categories
+    }
 
 
-#: The default rule of each category: the taxonomy's (``osgd/contract/table1.toml``, which gives the reasons
-#: for its clearances), following Table I.
-DEFAULT_RULES: dict[str, LabelRule] = {
-    category.name: LabelRule(handle=category.handle, working=category.working,
-                             task_clearance=category.task_clearance,
-                             hand_over_clearance=category.hand_over_clearance, split=category.split)
-    for category in TABLE1.categories
-}
+#: The default rule of each category of Table I (``osgd/contract/table1.toml`` gives the reasons for its
+#: clearances).
+DEFAULT_RULES: dict[str, LabelRule] = default_rules(TABLE1)
 
 
-def effective_rules(overrides: Mapping[str, LabelRule]) -> dict[str, LabelRule]:
-    """The default rules with a config's per-category replacements.
+def rule_mistakes(overrides: Mapping[str, LabelRule], taxonomy: Taxonomy) -> list[str]:
+    """What a config's per-category replacements name that the taxonomy has not: a category, a part."""
+    mistakes = [f"label_rules.{category}: unknown category; categories are {list(taxonomy.category_names)}"
+                for category in sorted(set(overrides) - set(taxonomy.category_names))]
+    return mistakes + [f"label_rules.{category}: unknown part(s) {rule.unknown_parts(taxonomy)}; parts are "
+                       f"{list(taxonomy.parts)}" for category, rule in sorted(overrides.items())
+                       if rule.unknown_parts(taxonomy)]
+
+
+def effective_rules(overrides: Mapping[str, LabelRule], taxonomy: Taxonomy = TABLE1) -> dict[str, LabelRule]:
+    """The default rules of the taxonomy's categories with a config's per-category replacements, bound to it.
 
     Raises
     ------
     ValueError
-        If an override names no category.
+        If an override names no category, or a part the taxonomy has not.
     """
-    unknown = sorted(set(overrides) - set(CATEGORIES))
-    if unknown:
-        raise ValueError(f"label_rules name unknown categor(ies) {unknown}; categories are {list(CATEGORIES)}")
-    return {category: overrides.get(category, DEFAULT_RULES[category]) for category in CATEGORIES}
+    mistakes = rule_mistakes(overrides, taxonomy)
+    if mistakes:
+        raise ValueError("; ".join(mistakes))
+    defaults = DEFAULT_RULES if taxonomy == TABLE1 else default_rules(taxonomy)
+    return {category: overrides[category].bound(taxonomy) if category in overrides else defaults[category]
+            for category in taxonomy.category_names}
 
 
 @dataclass(frozen=True)
@@ -155,7 +197,7 @@ def tool_axis(mesh: trimesh.Trimesh, face_parts: np.ndarray, rule: LabelRule) ->
     mesh : trimesh.Trimesh
         Object frame, m; F faces.
     face_parts : (F,) int
-        ``taxonomy.PARTS`` index per face, -1 unknown.
+        Part index per face (the rule's taxonomy), -1 unknown.
     rule : LabelRule
         Names the handle and working parts.
 
@@ -171,7 +213,7 @@ def tool_axis(mesh: trimesh.Trimesh, face_parts: np.ndarray, rule: LabelRule) ->
     handle = np.isin(face_parts, list(rule.handle_parts))
     # the working end is that of the rule's first working part the tool has: a wrench's open jaws, however
     # large its ring end (the paper authors' wrench_003, whose ring outweighs its jaws)
-    working = next((kind for kind in (face_parts == PART_INDEX[part] for part in rule.working)
+    working = next((kind for kind in (face_parts == rule.part(part) for part in rule.working)
                     if areas[kind].sum() > 0), None)
     if working is None or areas[handle].sum() <= 0:
         return None
@@ -215,7 +257,7 @@ def holding_parts(parts: np.ndarray, points: np.ndarray, axis: ToolAxis | None, 
     if not handle.any():
         return parts
     behind = working & (position < float(np.median(position[handle])))
-    return np.where(behind, PART_INDEX[rule.handle[0]], parts)
+    return np.where(behind, rule.part(rule.handle[0]), parts)
 
 
 def label_grasp(
@@ -230,11 +272,11 @@ def label_grasp(
     Parameters
     ----------
     category : str
-        One of ``taxonomy.CATEGORIES``.
+        A category of the rule's taxonomy.
     rule : LabelRule
         The category's rule.
     touched_parts : (K,) int array
-        Part indices (``taxonomy.PARTS``, -1 unknown) of the surface between
+        Part indices (the rule's taxonomy, -1 unknown) of the surface between
         the finger pads (:func:`holding_parts`).
     part_distances : mapping of part index to float
         Least distance, m, from the pads' region to each part near the grasp;
@@ -247,11 +289,11 @@ def label_grasp(
     Returns
     -------
     str
-        One of ``taxonomy.TASKS``.
+        A task of the rule's taxonomy.
     """
     touched = {int(part) for part in np.unique(touched_parts)}
     if not touched:
-        return "no task"
+        return NO_TASK
     handle, working = rule.handle_parts, rule.working_parts
     beyond_split = rule.by_position and position is not None and position >= rule.split
 
@@ -259,9 +301,9 @@ def label_grasp(
         return all(part_distances.get(part, np.inf) >= clearance for part in parts)
 
     if not beyond_split and touched <= handle and clear_of(working, rule.task_clearance):
-        return CATEGORY_TASK[category]
+        return rule.taxonomy.category(category).task
     if touched <= working and clear_of(handle, rule.hand_over_clearance):
-        return "hand over"
+        return HAND_OVER
     if beyond_split and UNKNOWN_PART not in touched and not (touched & handle and touched & working):
-        return "hand over"
-    return "no task"
+        return HAND_OVER
+    return NO_TASK

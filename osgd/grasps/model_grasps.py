@@ -23,7 +23,7 @@ import pyarrow as pa
 import trimesh
 
 from osgd.contract.schemas import GRASPS, mesh_from_arrow, vectors_to_arrow
-from osgd.contract.taxonomy import CATEGORIES, PARTS, TASKS
+from osgd.contract.taxonomy import TABLE1, Taxonomy
 from osgd.grasps.antipodal import sample_pairs, spread_order, thin_pairs
 from osgd.grasps.geometry import (
     GripperCollision,
@@ -56,7 +56,7 @@ class ModelInput:
         Object frame, m.
     faces : (F, 3) int64
     face_parts : (F,) int64
-        ``taxonomy.PARTS`` index per face, -1 unknown.
+        Part index per face (the taxonomy's parts), -1 unknown.
     convex_parts : list of (vertices, faces)
         The collision compound.
     annotated_pairs : list of dict
@@ -73,8 +73,8 @@ class ModelInput:
     annotated_pairs: list[dict]
 
     @classmethod
-    def from_table(cls, table: pa.Table, row: int) -> ModelInput:
-        """Row ``row`` of a ``models`` table.
+    def from_table(cls, table: pa.Table, row: int, taxonomy: Taxonomy = TABLE1) -> ModelInput:
+        """Row ``row`` of a ``models`` table, whose categories, parts and tasks are the taxonomy's.
 
         Raises
         ------
@@ -90,7 +90,7 @@ class ModelInput:
         vertices, faces = mesh_from_arrow(cell("vertices"), cell("faces"))
         face_parts = np.asarray(cell("face_parts").as_py(), dtype=np.int64)
         where = f"model {name} ({model_id})"
-        if category not in CATEGORIES:
+        if category not in taxonomy.category_names:
             raise ValueError(f"{where}: unknown category {category!r}")
         if len(face_parts) != len(faces):
             raise ValueError(f"{where}: {len(face_parts)} face_parts for {len(faces)} faces")
@@ -98,14 +98,14 @@ class ModelInput:
             raise ValueError(f"{where}: the mesh has no faces")
         if np.any(faces >= len(vertices)) or np.any(faces < 0):
             raise ValueError(f"{where}: a face indexes a vertex that does not exist")
-        if np.any((face_parts < -1) | (face_parts >= len(PARTS))):
-            raise ValueError(f"{where}: face_parts outside -1..{len(PARTS) - 1}")
+        if np.any((face_parts < -1) | (face_parts >= len(taxonomy.parts))):
+            raise ValueError(f"{where}: face_parts outside -1..{len(taxonomy.parts) - 1}")
         convex_parts = [
             mesh_from_arrow(part["vertices"], part["faces"]) for part in cell("convex_parts").values
         ] if cell("convex_parts").values is not None else []
         pairs = cell("annotated_pairs").as_py()
         for index, pair in enumerate(pairs):
-            if pair["task"] not in TASKS:
+            if pair["task"] not in taxonomy.tasks:
                 raise ValueError(f"{where}: annotated pair {index} ({pair['file']}) has unknown task {pair['task']!r}")
         return cls(model_id, name, category, vertices, faces, face_parts, convex_parts, pairs)
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from osgd.grasps.labels import LabelRule
+from osgd.contract.taxonomy import Taxonomy
+from osgd.grasps.labels import LabelRule, rule_mistakes
 from osgd.stage import StageParams
 
 
@@ -49,3 +50,7 @@ class GraspsStageParams(StageParams):
         default_factory=dict,
         description="per-category replacements of osgd.grasps.labels.DEFAULT_RULES (docs/grasps.md)",
     )
+
+    def taxonomy_mistakes(self, taxonomy: Taxonomy) -> list[str]:
+        """A replaced rule of a category or with a part that the taxonomy has not."""
+        return rule_mistakes(self.label_rules, taxonomy)

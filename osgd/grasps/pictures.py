@@ -20,10 +20,21 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from osgd.contract.schemas import mesh_from_arrow, vectors_from_arrow
-from osgd.contract.taxonomy import PARTS, TASK_COLOURS, TASKS
+from osgd.contract.taxonomy import PARTS, TASK_COLOURS, TASKS, task_palette
 from osgd.gripper import PANDA, Gripper
 from osgd.models.rows import find_model
 from osgd.store import ShardStore
+
+
+def _part_colour(part: int) -> str:
+    """A part's face tint; a part of a pipeline's own taxonomy (after Table I's) takes one of Table I's in turn."""
+    return PART_COLORS[part] if part in PART_COLORS else PART_COLORS[part % len(PARTS)]
+
+
+def _part_name(part: int) -> str:
+    """Table I's name of a part; ``part N`` for a part of a pipeline's own taxonomy."""
+    return "unknown part" if part < 0 else PARTS[part] if part < len(PARTS) else f"part {part}"
+
 
 #: A matplotlib colour: a name or hex string, or (r, g, b) floats in [0, 1].
 Colour = str | tuple[float, float, float]
@@ -169,7 +180,7 @@ def _draw_view(
     # Painter's order: far faces first.
     order = np.argsort(vertices[faces].mean(axis=1) @ depth_axis)
     polygons = (vertices[faces[order]] - vertices.mean(axis=0)) @ projection.T
-    face_colors = [PART_COLORS.get(int(part), PART_COLORS[-1]) for part in face_parts[order]]
+    face_colors = [_part_colour(int(part)) for part in face_parts[order]]
     for column, (title, selected) in enumerate(columns):
         axis = panels[row, column]
         axis.add_collection(PolyCollection(polygons, facecolors=face_colors, edgecolors="none"))
@@ -208,8 +219,7 @@ def _add_legend(figure, labels: list[str], colors: Mapping[str, Colour], face_pa
     shown = [label for label in colors if label in labels]
     handles = [Line2D([], [], color=colors[label], label=label) for label in shown]
     part_handles = [
-        Patch(color=PART_COLORS[int(part)], label=PARTS[int(part)] if part >= 0 else "unknown part")
-        for part in np.unique(face_parts)
+        Patch(color=_part_colour(int(part)), label=_part_name(int(part))) for part in np.unique(face_parts)
     ]
     figure.legend(handles=handles + part_handles, loc="lower center", ncol=min(len(handles) + len(part_handles), 8),
                   fontsize=8, frameon=False)
@@ -266,13 +276,14 @@ def show_grasps(
 
     tasks = grasps.column("task").to_pylist()
     if color_by == "task":
-        labels, colors = tasks, TASK_COLOURS
+        extra = sorted(set(tasks) - set(TASKS))  # the tasks of a pipeline's own taxonomy, after Table I's
+        labels, colors = tasks, TASK_COLOURS if not extra else task_palette([*TASKS, *extra])
     else:
         labels, colors = _stability(store, identity, grasps.column("grasp_id").to_numpy()), STABILITY_COLORS
     segments, contacts = _grasp_segments(grasps, gripper)
     views = _principal_views(vertices)
 
-    task_groups = [task for task in TASKS if task in tasks]
+    task_groups = [task for task in (*TASKS, *sorted(set(tasks) - set(TASKS))) if task in tasks]
     columns = [("all grasps", np.ones(len(tasks), dtype=bool))]
     columns += [(f'"{task}"', np.array([value == task for value in tasks])) for task in task_groups]
     figure, panels = plt.subplots(

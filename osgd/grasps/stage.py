@@ -27,7 +27,7 @@ from osgd.grasps.model_grasps import GraspAnnotator, ModelInput, rules_payload
 from osgd.grasps.params import GraspsStageParams
 from osgd.gripper import PANDA, Gripper
 from osgd.models.parts import without_task_labels
-from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, item_taxonomy
 from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
@@ -44,6 +44,7 @@ class GraspsStage(Stage):
     version = 3
     inputs = ("models",)
     Params = GraspsStageParams
+    uses_taxonomy = True
     description = "6-DoF parallel-jaw grasps with task labels."
 
     def plan(
@@ -52,8 +53,10 @@ class GraspsStage(Stage):
         """One item per models shard, same item id (module text).
 
         The payload holds the parameters, the seed, the gripper's dimensions
-        and the effective label rules, so a change to any of them (including
-        the defaults in code) gives new shard keys.
+        and the effective label rules of Table I's categories, so a change to
+        any of them (including the defaults in code) gives new shard keys; a
+        pipeline's own taxonomy, with its rules, joins the payload
+        (:meth:`osgd.stage.Stage.planned`).
         """
         assert isinstance(params, GraspsStageParams)
         payload = {
@@ -70,14 +73,16 @@ class GraspsStage(Stage):
     def build(self, item: WorkItem, store: ShardStore) -> BuildResult:
         """The grasps of every model in the item's models shard."""
         params = GraspsStageParams(**item.payload["params"])
-        rules = {category: LabelRule(**rule) for category, rule in item.payload["rules"].items()}
+        taxonomy = item_taxonomy(item)
+        rules = effective_rules({category: LabelRule(**rule) for category, rule in item.payload["rules"].items()},
+                                taxonomy)
         gripper = Gripper(**item.payload["gripper"])
         (models_key,) = item.inputs["models"]
         models = store.read("models", models_key)
         tables = []
         notes: list[str] = []
         for row in range(models.num_rows):
-            model = ModelInput.from_table(models, row)
+            model = ModelInput.from_table(models, row, taxonomy)
             annotator = GraspAnnotator(model, params, rules, gripper, item.payload["seed"])
             tables.append(annotator.grasps())
             notes.extend(annotator.notes)
@@ -132,7 +137,8 @@ def format_counts(counts: Counter[tuple[str, str]], note: str = "") -> str:
     """A text table: one row per category, one column per task seen, totals; ``note`` ends the title line."""
     if not counts:
         return "grasps: none"
-    tasks = [task for task in TASKS if any(key[1] == task for key in counts)]
+    tasks = [task for task in (*TASKS, *sorted({task for _, task in counts} - set(TASKS)))
+             if any(key[1] == task for key in counts)]
     extra = sorted({category for category, _ in counts} - set(CATEGORIES))
     categories = [category for category in (*CATEGORIES, *extra) if any(key[0] == category for key in counts)]
     header = ["category", *tasks, "total"]

@@ -17,7 +17,7 @@ from typing import Final
 
 import numpy as np
 
-from osgd.contract.taxonomy import CATEGORIES, TABLE1
+from osgd.contract.taxonomy import TABLE1, CategorySpec, Taxonomy
 
 #: Rolling and spinning friction of every model (REFERENCE section 8).
 ROLLING_FRICTION: Final[float] = 0.01
@@ -51,11 +51,14 @@ class CategoryProperties:
         return (self.lateral_friction, ROLLING_FRICTION, SPINNING_FRICTION)
 
 
+def _properties(category: CategorySpec) -> CategoryProperties:
+    return CategoryProperties(category.length_range, category.density, category.mass_range,
+                              category.lateral_friction)
+
+
 #: The properties of each category of Table I (``osgd/contract/table1.toml`` gives their sources).
 CATEGORY_PROPERTIES: Final[dict[str, CategoryProperties]] = {
-    category.name: CategoryProperties(category.length_range, category.density, category.mass_range,
-                                      category.lateral_friction)
-    for category in TABLE1.categories
+    category.name: _properties(category) for category in TABLE1.categories
 }
 
 #: A model whose real length lies outside ``[FAR_OFF_SCALE_LOW * min, FAR_OFF_SCALE_HIGH * max]``
@@ -64,27 +67,24 @@ FAR_OFF_SCALE_LOW: Final[float] = 0.5
 FAR_OFF_SCALE_HIGH: Final[float] = 2.0
 
 
-def category_properties(category: str) -> CategoryProperties:
-    """The row of ``category``.
+def category_properties(category: str, taxonomy: Taxonomy = TABLE1) -> CategoryProperties:
+    """The properties of ``category`` in the taxonomy.
 
     Raises
     ------
     ValueError
-        If the category is not one of :data:`osgd.contract.taxonomy.CATEGORIES`.
+        If the taxonomy has no such category.
     """
-    try:
-        return CATEGORY_PROPERTIES[category]
-    except KeyError:
-        raise ValueError(f"unknown category {category!r}; expected one of {list(CATEGORIES)}") from None
+    return _properties(taxonomy.category(category))
 
 
 def draw_length(category: str, rng: np.random.Generator) -> float:
-    """A real length for one model, uniform in its category's range, metres."""
+    """A real length for one model of Table I, uniform in its category's range, metres."""
     low, high = category_properties(category).length_range
     return float(rng.uniform(low, high))
 
 
-def plausible_length_range(category: str) -> tuple[float, float]:
+def plausible_length_range(category: str, taxonomy: Taxonomy = TABLE1) -> tuple[float, float]:
     """The lengths accepted before a model counts as far off scale, metres."""
-    low, high = category_properties(category).length_range
+    low, high = category_properties(category, taxonomy).length_range
     return (FAR_OFF_SCALE_LOW * low, FAR_OFF_SCALE_HIGH * high)

@@ -15,7 +15,8 @@ model whose sidecar gives no ``[[parts]]`` regions), the parts of
    width and thickness, the number of separate runs across the width (the
    gaps between fork tines and pliers arms) and how much of it crosses
    enclosed holes (a wrench's ring).
-3. **A rule per category** (:data:`SEGMENTERS`) reads these profiles: which
+3. **A rule per category** (:data:`SEGMENTERS`; for a taxonomy's own
+   elongated categories the generic :func:`elongated`) reads these profiles: which
    end is the handle (the thinner end of a knife is its blade, the wider end
    of a hammer its head...), where each part begins along the axis, and how
    clearly the profile shows it (the *confidence*, in [0, 1]). Each face
@@ -37,6 +38,7 @@ Lengths in metres; the mesh is expected at real size.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any, Final
@@ -50,7 +52,7 @@ from scipy import ndimage
 from scipy.spatial import QhullError
 from scipy.spatial.transform import Rotation
 
-from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, UNKNOWN_PART
+from osgd.contract.taxonomy import CATEGORIES, ELONGATED, PART_INDEX, TABLE1, UNKNOWN_PART, CategorySpec, Taxonomy
 
 #: Columns of the profiles along the tool's axis (0.4-0.8 mm for real tools).
 COLUMNS: Final[int] = 400
@@ -663,6 +665,62 @@ def _pliers(profiles: Profiles) -> Segmentation:
     return Segmentation(columns, _ramp(share, 0.3, 0.7), f"no two arms at either end ({share:.0%})", profiles)
 
 
+# -- the generic rule of a taxonomy's elongated category ---------------------------------------------
+
+#: The share of the length at each end read by :func:`elongated` to tell the ends apart ("wider",
+#: "narrower"), and the share at each end where the boundary between the two parts may not lie.
+END_SHARE: Final[float] = 0.2
+#: The cross-section contrast across the boundary, as ``|log(working / handle)|``, from which the parts
+#: count as found (confidence 0) to clearly found (confidence 1): 1.1x to 1.5x.
+CONTRAST_RANGE: Final[tuple[float, float]] = (float(np.log(1.1)), float(np.log(1.5)))
+
+
+def _two_segments(values: np.ndarray, lowest: int, highest: int) -> int:
+    """The column in ``[lowest, highest]`` where a fit of two constant segments to ``values`` is best."""
+    total, squares = np.concatenate([[0.0], np.cumsum(values)]), np.concatenate([[0.0], np.cumsum(values**2)])
+    count = len(values)
+    splits = np.arange(max(lowest, 1), min(highest, count - 1) + 1)
+    left = squares[splits] - total[splits] ** 2 / splits
+    right = (squares[count] - squares[splits]) - (total[count] - total[splits]) ** 2 / (count - splits)
+    return int(splits[int(np.argmin(left + right))])
+
+
+def _end_scores(section: np.ndarray, working_end: str, profiles: Profiles) -> tuple[float, float]:
+    """How much each end (low, high columns) looks like the working end; the larger one is."""
+    if working_end in ("wider", "narrower"):
+        low, high = (_median(section, profiles.at(0.0, END_SHARE)), _median(section, profiles.at(1 - END_SHARE, 1)))
+    else:  # heavier, lighter: the volume of each half
+        low, high = float(section[profiles.at(0.0, 0.5)].sum()), float(section[profiles.at(0.5, 1.0)].sum())
+    return (low, high) if working_end in ("wider", "heavier") else (-low, -high)
+
+
+def elongated(profiles: Profiles, category: CategorySpec, part_index: Mapping[str, int]) -> Segmentation:
+    """handle | working part of a taxonomy's elongated category (``parts_rule = "elongated"``).
+
+    The working end is the one ``category.working_end`` names: the end whose outer fifth has the larger
+    (``wider``) or smaller (``narrower``) median cross-section, or the half of the larger (``heavier``) or
+    smaller (``lighter``) volume. The boundary is where the cross-section changes: the best fit of two
+    constant segments to the log cross-section along the axis, at least a fifth of the length from either
+    end. The confidence is the contrast of the two segments (:data:`CONTRAST_RANGE`); it is zero where the
+    segments disagree with the ends (the working segment of a ``wider`` tool narrower than its handle).
+    Faces take ``category.handle[0]`` behind the boundary and ``category.working[0]`` from it on.
+    """
+    section = np.log(np.maximum(_section(profiles), profiles.pixel**2))
+    low, high = _end_scores(section, category.working_end, profiles)
+    profiles = profiles if high >= low else profiles.reversed()
+    section = section if high >= low else section[::-1]
+    count = profiles.columns
+    boundary = _two_segments(section, round(END_SHARE * count), round((1 - END_SHARE) * count))
+    contrast = float(section[boundary:].mean() - section[:boundary].mean())
+    agrees = contrast > 0 if category.working_end in ("wider", "heavier") else contrast < 0
+    columns = np.full(count, part_index[category.handle[0]], dtype=np.int8)
+    columns[boundary:] = part_index[category.working[0]]
+    confidence = _ramp(abs(contrast), *CONTRAST_RANGE) if agrees else 0.0
+    reason = (f"the cross-section changes by {np.exp(abs(contrast)):.2f}x along the tool" if agrees else
+              f"the {category.working_end} end's segment is not {category.working_end} than the other")
+    return Segmentation(columns, confidence, reason, profiles)
+
+
 #: The rule of each category.
 SEGMENTERS: Final[dict[str, Callable[[Profiles], Segmentation]]] = {
     "knife": _knife,
@@ -734,7 +792,17 @@ def turned_confidence(turned: float, principal: float) -> float:
     return float(turned * np.sqrt(max(0.0, 1.0 - principal / MIN_CONFIDENCE)))
 
 
-def find_parts(mesh: trimesh.Trimesh, category: str) -> AutomaticParts:
+def _segmenter(category: str, taxonomy: Taxonomy) -> Callable[[Profiles], Segmentation] | None:
+    """The rule of a category: its own (Table I's), the taxonomy's elongated rule, or None."""
+    spec = taxonomy.category(category)
+    if category in SEGMENTERS:
+        return SEGMENTERS[category]
+    if spec.parts_rule == ELONGATED:
+        return functools.partial(elongated, category=spec, part_index=taxonomy.part_index)
+    return None
+
+
+def find_parts(mesh: trimesh.Trimesh, category: str, taxonomy: Taxonomy = TABLE1) -> AutomaticParts:
     """The part of every face of a tool mesh, found from its geometry (module text).
 
     Parameters
@@ -742,25 +810,31 @@ def find_parts(mesh: trimesh.Trimesh, category: str) -> AutomaticParts:
     mesh : trimesh.Trimesh
         (V, 3) vertices at real size, m, any pose; (F, 3) faces.
     category : str
-        One of :data:`osgd.contract.taxonomy.CATEGORIES`.
+        A category of ``taxonomy``: one of Table I's (its own rule), or one whose ``parts_rule`` is
+        ``"elongated"`` (:func:`elongated`); any other gets no parts and a note.
+    taxonomy : Taxonomy
 
     Returns
     -------
     AutomaticParts
-        ``face_parts`` (F,) int8.
+        ``face_parts`` (F,) int8, indices into the taxonomy's parts.
 
     Raises
     ------
     ValueError
-        For an unknown category.
+        For a category the taxonomy does not have.
     """
-    if category not in SEGMENTERS:
-        raise ValueError(f"unknown category {category!r}; expected one of {list(CATEGORIES)}")
+    segmenter = _segmenter(category, taxonomy)
     frame = principal_frame(mesh)
-    segmentation = SEGMENTERS[category](profiles(mesh, frame))
+    if segmenter is None:
+        note = (f"automatic parts: the taxonomy gives a {category} no parts rule; its faces are left unknown and "
+                "its sampled grasps get no task: give [[parts]] regions or a [part_labels] file in the sidecar, or "
+                'parts_rule = "elongated" to the category (docs/taxonomy.md)')
+        return AutomaticParts(np.full(len(mesh.faces), UNKNOWN_PART, dtype=np.int8), 0.0, False, note, frame)
+    segmentation = segmenter(profiles(mesh, frame))
     confidence = round(float(segmentation.confidence), 3)
     if confidence < MIN_CONFIDENCE:
-        turned = SEGMENTERS[category](profiles(mesh, frame.turned()))
+        turned = segmenter(profiles(mesh, frame.turned()))
         if round(turned_confidence(float(turned.confidence), confidence), 3) >= MIN_CONFIDENCE:
             segmentation = turned
             confidence = round(turned_confidence(float(turned.confidence), confidence), 3)

@@ -119,8 +119,11 @@ def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_part
 
 
 def legend_handles(parts: set[int]) -> list[Patch]:
-    """Legend entries for the parts seen (indices into PARTS, -1 unknown), in PARTS order."""
-    handles = [Patch(color=PART_COLOURS[index], label=PARTS[index]) for index in sorted(p for p in parts if p >= 0)]
+    """Legend entries for the parts seen (indices into PARTS, -1 unknown), in PARTS order; a part of a
+    pipeline's own taxonomy (after Table I's) is ``part N``, in the colour of Table I's last part."""
+    handles = [Patch(color=PART_COLOURS[min(index, len(PARTS) - 1)],
+                     label=PARTS[index] if index < len(PARTS) else f"part {index}")
+               for index in sorted(p for p in parts if p >= 0)]
     if -1 in parts:
         handles.append(Patch(color=UNKNOWN_COLOUR, label="unknown"))
     return handles

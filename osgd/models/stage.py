@@ -51,7 +51,7 @@ from pydantic import Field
 from osgd.config import file_problem
 from osgd.contract.schemas import MODELS, empty_table
 from osgd.contract.shards import ShardRecord, file_sha256
-from osgd.contract.taxonomy import CATEGORIES, UNKNOWN_PART
+from osgd.contract.taxonomy import CATEGORIES, UNKNOWN_PART, Taxonomy
 from osgd.errors import InputError
 from osgd.models import decomposition, osgd_import, parts, procedural, user
 from osgd.models.categories import category_properties, draw_length
@@ -59,7 +59,7 @@ from osgd.models.decomposition import SCAN_MAX_FACES
 from osgd.models.mass import clamp_mass, compound_mass_properties, mesh_mass_properties
 from osgd.models.osgd_import import AnnotatedPair
 from osgd.models.validation import DamagedMesh, ModelRejected, check_length, check_mesh
-from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_notes
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, item_taxonomy, read_notes
 from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
@@ -181,7 +181,9 @@ def _axis_aligned_length(mesh: trimesh.Trimesh) -> float:
     return float(mesh.extents.max())
 
 
-def _user_parts(mesh: trimesh.Trimesh, category: str, face_parts: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+def _user_parts(
+    mesh: trimesh.Trimesh, category: str, face_parts: np.ndarray, taxonomy: Taxonomy
+) -> tuple[np.ndarray, dict[str, Any]]:
     """A user's mesh's parts: its sidecar's, automatic parts on the faces no region claims.
 
     Returns the parts (F,) int8 and the ``parts`` record of the provenance (with a ``note`` when the
@@ -190,7 +192,7 @@ def _user_parts(mesh: trimesh.Trimesh, category: str, face_parts: np.ndarray) ->
     unclaimed = face_parts == UNKNOWN_PART
     if not unclaimed.any():
         return face_parts, {"method": "sidecar", "confidence": 1.0}
-    found = parts.find_parts(mesh, category)
+    found = parts.find_parts(mesh, category, taxonomy)
     record: dict[str, Any] = {
         "method": "automatic" if unclaimed.all() else "sidecar+automatic",
         "confidence": found.confidence,
@@ -212,6 +214,7 @@ class ModelsStage(Stage):
     version = 2
     inputs = ()
     Params = ModelsStageParams
+    uses_taxonomy = True
     description = "Object models at real size with physical properties and convex parts."
 
     # -- planning ---------------------------------------------------------------------
@@ -311,11 +314,12 @@ class ModelsStage(Stage):
         if source == "user":
             mesh_path = location / payload["mesh"]
             sidecar_file = user.sidecar_path(mesh_path)
-            sidecar = user.read_sidecar(sidecar_file)
+            taxonomy = item_taxonomy(item)
+            sidecar = user.read_sidecar(sidecar_file, taxonomy)
             mesh, groups = user.load_user_mesh(mesh_path)
             face_parts = user.face_parts_from_regions(mesh, sidecar, groups, str(sidecar_file),
-                                                     sidecar_file.parent)
-            pairs, notes = user.read_grasp_files(sidecar, location)
+                                                     sidecar_file.parent, taxonomy)
+            pairs, notes = user.read_grasp_files(sidecar, location, taxonomy)
             return _SourceModel(
                 mesh_path.stem,
                 sidecar.category,
@@ -350,6 +354,7 @@ class ModelsStage(Stage):
         self, model: _SourceModel, item: WorkItem, store: ShardStore
     ) -> tuple[dict[str, Any], list[str], list[str]]:
         """The row, its notes (kept, also in the provenance) and this build's warnings (a bad cache file)."""
+        taxonomy = item_taxonomy(item)
         max_loss = item.payload.get("max_repair_loss") if model.user_mesh else None
         checked = check_mesh(model.mesh, model.face_parts, name=item.item_id, max_loss=max_loss)
         notes = [*model.notes, *checked.notes]
@@ -358,11 +363,11 @@ class ModelsStage(Stage):
         scale = model.scale if model.scale is not None else float(model.length) / measure(mesh)
         mesh.apply_scale(scale)
         length = measure(mesh)
-        check_length(length, model.category, name=item.item_id)
+        check_length(length, model.category, name=item.item_id, taxonomy=taxonomy)
         pairs = [pair.scaled(scale) for pair in model.pairs]
         face_parts, found = checked.face_parts, None
         if model.user_mesh:
-            face_parts, found = _user_parts(mesh, model.category, face_parts)
+            face_parts, found = _user_parts(mesh, model.category, face_parts, taxonomy)
             notes += [found["note"]] if found.get("note") else []
 
         preset = decomposition.resolve_preset(item.payload["decomposition"], model.category, model.user_mesh)
@@ -370,7 +375,7 @@ class ModelsStage(Stage):
         compound = decomposition.decompose(mesh.vertices, mesh.faces, preset, cache,
                                            item.payload.get("scan_max_faces", SCAN_MAX_FACES))
         notes += compound.notes
-        properties = category_properties(model.category)
+        properties = category_properties(model.category, taxonomy)
         if checked.is_closed:
             mass = mesh_mass_properties(mesh, properties.density)
         else:
@@ -444,7 +449,7 @@ class ModelsStage(Stage):
                 methods[parts.parts_method(source, json.loads(provenance))[0]] += 1
         sources = sorted({source for _, source in counts})
         lines = ["models per category: " + ", ".join(sources)]
-        for category in CATEGORIES:
+        for category in [*CATEGORIES, *sorted({category for category, _ in counts} - set(CATEGORIES))]:
             row = [counts.get((category, source), 0) for source in sources]
             if any(row):
                 lines.append(f"  {category:<12}" + "".join(f"{count:>6}" for count in row))

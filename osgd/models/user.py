@@ -47,10 +47,10 @@ from typing import Any, Literal
 
 import numpy as np
 import trimesh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from osgd.config import MAX_CONFIG_BYTES, read_input_file
-from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, TASKS, UNKNOWN_PART, task_from_file_stem
+from osgd.contract.taxonomy import TABLE1, UNKNOWN_PART, Taxonomy, task_from_file_stem
 from osgd.errors import InputError
 from osgd.models.osgd_import import AnnotatedPair, blender_to_obj
 from osgd.models.validation import ModelRejected
@@ -89,13 +89,6 @@ class PartRegion(_Strict):
     half_space: HalfSpace | None = None
     groups: list[str] | None = None
 
-    @field_validator("part")
-    @classmethod
-    def _known_part(cls, value: str) -> str:
-        if value not in PART_INDEX:
-            raise ValueError(f"unknown part {value!r}; expected one of {list(PARTS)}")
-        return value
-
     @model_validator(mode="after")
     def _one_region(self) -> PartRegion:
         given = [name for name in ("box", "half_space", "groups") if getattr(self, name) is not None]
@@ -111,13 +104,6 @@ class GraspFile(_Strict):
     task: str | None = None
     frame: Literal["model", "blender"] = "model"
 
-    @field_validator("task")
-    @classmethod
-    def _known_task(cls, value: str | None) -> str | None:
-        if value is not None and value not in TASKS:
-            raise ValueError(f"unknown task {value!r}; expected one of {list(TASKS)}")
-        return value
-
 
 class PartLabels(_Strict):
     """A file of part labels, one integer per face (or vertex), relative to the sidecar."""
@@ -125,14 +111,6 @@ class PartLabels(_Strict):
     file: str
     names: list[str] = Field(min_length=1, description="the part that label 0, 1, 2... stands for")
     per: Literal["face", "vertex"] = "face"
-
-    @field_validator("names")
-    @classmethod
-    def _known_parts(cls, names: list[str]) -> list[str]:
-        unknown = [name for name in names if name not in PART_INDEX]
-        if unknown:
-            raise ValueError(f"unknown part(s) {unknown}; expected some of {list(PARTS)}")
-        return names
 
 
 class Sidecar(_Strict):
@@ -147,20 +125,6 @@ class Sidecar(_Strict):
     part_labels: PartLabels | None = None
     parts: list[PartRegion] = Field(default_factory=list)
     grasps: list[GraspFile] = Field(default_factory=list)
-
-    @field_validator("category")
-    @classmethod
-    def _known_category(cls, value: str) -> str:
-        if value not in CATEGORIES:
-            raise ValueError(f"unknown category {value!r}; expected one of {list(CATEGORIES)}")
-        return value
-
-    @field_validator("default_part")
-    @classmethod
-    def _known_default(cls, value: str | None) -> str | None:
-        if value is not None and value not in PART_INDEX:
-            raise ValueError(f"unknown part {value!r}; expected one of {list(PARTS)}")
-        return value
 
     @model_validator(mode="after")
     def _size_given_once(self) -> Sidecar:
@@ -189,8 +153,27 @@ def list_user_meshes(user_dir: Path) -> list[Path]:
     return sorted(path for path in user_dir.iterdir() if path.suffix.lower() in MESH_SUFFIXES and not path.is_dir())
 
 
-def parse_sidecar(text: str, origin: str = "<sidecar>") -> Sidecar:
-    """Read a sidecar's TOML text.
+def taxonomy_problems(sidecar: Sidecar, taxonomy: Taxonomy = TABLE1) -> list[str]:
+    """What a sidecar names that the taxonomy does not have: its category, a part, a task; ``key = value: why``."""
+    problems = []
+    if sidecar.category not in taxonomy.category_names:
+        problems.append(f"category = {sidecar.category!r}: unknown category {sidecar.category!r}; expected one of "
+                        f"{list(taxonomy.category_names)}")
+    parts = [("default_part", sidecar.default_part)] if sidecar.default_part is not None else []
+    parts += [(f"parts.{index}.part", region.part) for index, region in enumerate(sidecar.parts)]
+    if sidecar.part_labels is not None:
+        parts += [(f"part_labels.names.{index}", name) for index, name in enumerate(sidecar.part_labels.names)]
+    problems += [f"{where} = {part!r}: unknown part {part!r}; expected one of {list(taxonomy.parts)}"
+                 for where, part in parts if part not in taxonomy.part_index]
+    problems += [f"grasps.{index}.task = {entry.task!r}: unknown task {entry.task!r}; expected one of "
+                 f"{list(taxonomy.tasks)}"
+                 for index, entry in enumerate(sidecar.grasps)
+                 if entry.task is not None and entry.task not in taxonomy.tasks]
+    return problems
+
+
+def parse_sidecar(text: str, origin: str = "<sidecar>", taxonomy: Taxonomy = TABLE1) -> Sidecar:
+    """Read a sidecar's TOML text; its category, parts and tasks are the taxonomy's.
 
     Raises
     ------
@@ -201,9 +184,13 @@ def parse_sidecar(text: str, origin: str = "<sidecar>") -> Sidecar:
     except tomllib.TOMLDecodeError as error:
         raise SidecarError(origin, f"not valid TOML: {error}") from error
     try:
-        return Sidecar(**document)
+        sidecar = Sidecar(**document)
     except ValidationError as error:
         raise SidecarError(origin, "; ".join(_problem(entry) for entry in error.errors())) from error
+    problems = taxonomy_problems(sidecar, taxonomy)
+    if problems:
+        raise SidecarError(origin, "; ".join(problems))
+    return sidecar
 
 
 def _problem(entry: Mapping[str, Any]) -> str:
@@ -216,8 +203,8 @@ def _problem(entry: Mapping[str, Any]) -> str:
     return f"{'.'.join(str(part) for part in entry['loc'])} = {entry.get('input')!r}: {message}"
 
 
-def read_sidecar(path: Path) -> Sidecar:
-    """Read a sidecar file.
+def read_sidecar(path: Path, taxonomy: Taxonomy = TABLE1) -> Sidecar:
+    """Read a sidecar file; its category, parts and tasks are the taxonomy's.
 
     Raises
     ------
@@ -234,7 +221,7 @@ def read_sidecar(path: Path) -> Sidecar:
         text = data.decode("utf-8")
     except UnicodeDecodeError as error:
         raise SidecarError(path, f"not UTF-8 text ({error.reason} at byte {error.start}); a sidecar is TOML") from error
-    return parse_sidecar(text, str(path))
+    return parse_sidecar(text, str(path), taxonomy)
 
 
 def _toml_value(value: object) -> str:
@@ -289,8 +276,9 @@ def _load_with_groups(mesh_path: Path) -> tuple[trimesh.Trimesh, dict[str, np.nd
     return trimesh.util.concatenate(meshes), groups
 
 
-def read_part_labels(mesh: trimesh.Trimesh, labels: PartLabels, base_dir: Path) -> np.ndarray:
-    """The part of each face from a part label file (``taxonomy.PARTS`` indices, -1 unknown).
+def read_part_labels(mesh: trimesh.Trimesh, labels: PartLabels, base_dir: Path,
+                     taxonomy: Taxonomy = TABLE1) -> np.ndarray:
+    """The part of each face from a part label file (indices into the taxonomy's parts, -1 unknown).
 
     Per vertex, a face takes the part that at least two of its three corners have, else its first corner's.
 
@@ -319,7 +307,7 @@ def read_part_labels(mesh: trimesh.Trimesh, labels: PartLabels, base_dir: Path) 
     if len(wrong):
         raise InputError(path, f"label {int(values[wrong[0]])} of {labels.per} {int(wrong[0])}: expected -1 "
                                f"(unknown) or 0-{len(labels.names) - 1}, an index into names {labels.names}")
-    lookup = np.array([*(PART_INDEX[name] for name in labels.names), UNKNOWN_PART], dtype=np.int8)
+    lookup = np.array([*(taxonomy.part_index[name] for name in labels.names), UNKNOWN_PART], dtype=np.int8)
     parts = lookup[values]  # -1 takes the last entry: unknown
     if labels.per == "vertex":
         corners = parts[mesh.faces]
@@ -329,10 +317,10 @@ def read_part_labels(mesh: trimesh.Trimesh, labels: PartLabels, base_dir: Path) 
 
 def face_parts_from_regions(
     mesh: trimesh.Trimesh, sidecar: Sidecar, groups: dict[str, np.ndarray], origin: str = "<sidecar>",
-    base_dir: Path | None = None,
+    base_dir: Path | None = None, taxonomy: Taxonomy = TABLE1,
 ) -> np.ndarray:
     """The part of each face from the sidecar: its regions (later regions win) over its part label file
-    (read from ``base_dir``, the sidecar's folder) over ``default_part``.
+    (read from ``base_dir``, the sidecar's folder) over ``default_part``; indices into the taxonomy's parts.
 
     Returns
     -------
@@ -345,10 +333,12 @@ def face_parts_from_regions(
     InputError
         For a part label file that cannot be used (:func:`read_part_labels`).
     """
-    default = PART_INDEX[sidecar.default_part] if sidecar.default_part else UNKNOWN_PART
+    part_index = taxonomy.part_index
+    default = part_index[sidecar.default_part] if sidecar.default_part else UNKNOWN_PART
     parts = np.full(len(mesh.faces), default, dtype=np.int8)
     if sidecar.part_labels is not None:
-        labelled = read_part_labels(mesh, sidecar.part_labels, Path(origin).parent if base_dir is None else base_dir)
+        labelled = read_part_labels(mesh, sidecar.part_labels, Path(origin).parent if base_dir is None else base_dir,
+                                    taxonomy)
         parts = np.where(labelled != UNKNOWN_PART, labelled, parts).astype(np.int8)
     centres = mesh.triangles_center
     for region in sidecar.parts:
@@ -365,12 +355,13 @@ def face_parts_from_regions(
                         f"{sorted(groups) or 'no groups'}"
                     )
                 inside[groups[group]] = True
-        parts[inside] = PART_INDEX[region.part]
+        parts[inside] = part_index[region.part]
     return parts
 
 
-def read_grasp_files(sidecar: Sidecar, base_dir: Path) -> tuple[list[AnnotatedPair], list[str]]:
-    """The sidecar's contact pairs, in the mesh's frame and units.
+def read_grasp_files(sidecar: Sidecar, base_dir: Path,
+                     taxonomy: Taxonomy = TABLE1) -> tuple[list[AnnotatedPair], list[str]]:
+    """The sidecar's contact pairs, in the mesh's frame and units; a task from a file stem is the taxonomy's.
 
     Raises
     ------
@@ -384,7 +375,7 @@ def read_grasp_files(sidecar: Sidecar, base_dir: Path) -> tuple[list[AnnotatedPa
             raise InputError(path, "grasp file named in the sidecar does not exist")
         try:
             points = np.load(path, allow_pickle=False)
-            task = entry.task or task_from_file_stem(path.stem)
+            task = entry.task or task_from_file_stem(path.stem, taxonomy.tasks)
         except (OSError, ValueError, EOFError) as error:
             raise InputError(path, str(error)) from error
         if points.ndim != 2 or points.shape[1] != 3:

@@ -35,7 +35,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from osgd.contract.taxonomy import UNKNOWN_PART
+from osgd.contract.taxonomy import TABLE1, UNKNOWN_PART, Taxonomy
 from osgd.models.categories import plausible_length_range
 
 log = logging.getLogger(__name__)
@@ -351,7 +351,7 @@ def _close_and_orient(work: trimesh.Trimesh, parts: np.ndarray, notes: list[str]
     return parts
 
 
-def check_length(length: float, category: str, *, name: str = "mesh") -> None:
+def check_length(length: float, category: str, *, name: str = "mesh", taxonomy: Taxonomy = TABLE1) -> None:
     """Reject a real length far outside the category's range (a unit mix-up).
 
     Parameters
@@ -363,7 +363,7 @@ def check_length(length: float, category: str, *, name: str = "mesh") -> None:
     ------
     ModelRejected
     """
-    low, high = plausible_length_range(category)
+    low, high = plausible_length_range(category, taxonomy)
     if not low <= length <= high:
         raise ModelRejected(
             f"{name}: far off scale: {length:.4g} m long, but a {category} is {low:.3g}-{high:.3g} m; "

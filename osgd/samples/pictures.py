@@ -8,19 +8,20 @@ thick, the edges along the closing direction thin.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pyarrow.compute as pc
 
 from osgd.contract.samples import Sample, decode_row, metadata_vocabulary
-from osgd.contract.taxonomy import TASK_COLOURS, TASKS
+from osgd.contract.taxonomy import TASK_COLOURS, TASKS, task_palette
 from osgd.samples.projection import rectangle_corners
 from osgd.store import ShardStore
 
 
-def find_sample(store: ShardStore, sample_id: str) -> Sample:
-    """The sample called ``sample_id`` in any verified ``samples`` shard.
+def find_sample(store: ShardStore, sample_id: str) -> tuple[Sample, dict[str, list[str]]]:
+    """The sample called ``sample_id`` in any verified ``samples`` shard, and the vocabulary of its shard.
 
     Raises
     ------
@@ -36,7 +37,7 @@ def find_sample(store: ShardStore, sample_id: str) -> Sample:
         if pc.any(matches).as_py():
             table = store.read("samples", key)
             vocabulary = metadata_vocabulary(table.schema.metadata, f"samples shard {key}")
-            return decode_row(table.filter(matches).to_pylist()[0], vocabulary)
+            return decode_row(table.filter(matches).to_pylist()[0], vocabulary), vocabulary
     raise KeyError(f"no sample {sample_id!r} in {store.root / 'samples'} ({len(keys)} shards searched)")
 
 
@@ -64,11 +65,12 @@ def view_window(sample: Sample, grow: float = 1.3, margin: int = 16, minimum: in
     return int(left), int(top), int(right), int(bottom)
 
 
-def draw_sample(sample: Sample, axes, noisy: bool = True, crop: bool = True) -> None:
+def draw_sample(sample: Sample, axes, noisy: bool = True, crop: bool = True, tasks: Sequence[str] = TASKS) -> None:
     """Draw a sample onto matplotlib axes (depth, boxes, rectangles, legend).
 
     ``crop`` shows only :func:`view_window`; the colour map then spans the
-    depths seen there.
+    depths seen there. ``tasks`` are the names ``sample.grasp_tasks`` index: the
+    vocabulary of the sample's shard (Table I's by default).
     """
     from matplotlib.lines import Line2D  # noqa: PLC0415
     from matplotlib.patches import Rectangle  # noqa: PLC0415
@@ -87,15 +89,15 @@ def draw_sample(sample: Sample, axes, noisy: bool = True, crop: bool = True) -> 
                                  linewidth=1.2))
         axes.text(x1, y1 - 3, category, color="black", fontsize=7,
                   bbox={"facecolor": "white", "alpha": 0.8, "pad": 1, "edgecolor": "none"})
-    colours = TASK_COLOURS
-    tasks = [TASKS[index] for index in sample.grasp_tasks]
-    for corners, task in zip(rectangle_corners(sample.grasp_rectangles), tasks, strict=True):
+    colours = TASK_COLOURS if tuple(tasks) == TASKS else task_palette(tasks)
+    names = [tasks[index] for index in sample.grasp_tasks]
+    for corners, task in zip(rectangle_corners(sample.grasp_rectangles), names, strict=True):
         colour = colours[task]
         closed = np.vstack([corners, corners[:1]])
         axes.plot(closed[:, 0], closed[:, 1], color=colour, linewidth=0.8)
         for start, end in ((0, 1), (2, 3)):  # the finger plates
             axes.plot(corners[[start, end], 0], corners[[start, end], 1], color=colour, linewidth=2.2)
-    present = [task for task in TASKS if task in set(tasks)]
+    present = [task for task in tasks if task in set(names)]
     handles = [Line2D([], [], color=colours[task], linewidth=2.2, label=task) for task in present]
     if handles:
         axes.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.18, 1.0), fontsize=8, title="task",
@@ -136,10 +138,10 @@ def show_sample(store: ShardStore, sample_id: str, out: str | Path, crop: bool =
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    sample = find_sample(store, sample_id)
+    sample, vocabulary = find_sample(store, sample_id)
     figure, axes = plt.subplots(figsize=(9.0, 6.5), dpi=120)
     try:
-        draw_sample(sample, axes, crop=crop)
+        draw_sample(sample, axes, crop=crop, tasks=vocabulary["tasks"])
         figure.tight_layout()
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)

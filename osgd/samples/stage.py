@@ -41,8 +41,9 @@ from scipy.spatial.transform import Rotation
 
 from osgd.camera import KINECT_V2, CameraIntrinsics
 from osgd.contract.encoding import CLEAN_DEPTH_PNG_PARAMS, encode_depth, encode_mask
-from osgd.contract.schemas import SAMPLES
+from osgd.contract.schemas import SAMPLES, samples_schema
 from osgd.contract.shards import ShardRecord
+from osgd.contract.taxonomy import TABLE1
 from osgd.gripper import PANDA, Gripper
 from osgd.models.rows import BODY_COLUMNS, model_rows
 from osgd.samples.boxes import SilhouetteCounter, visible_boxes
@@ -60,7 +61,7 @@ from osgd.samples.projection import (
 from osgd.samples.renderer import BACKENDS, Renderer, Rendering, RenderObject, hull_vertices, make_renderer
 from osgd.samples.viewpoint import CameraPose, draw_camera_pose
 from osgd.scenes.split import SplitParams, model_sides, scene_split, unit_hash
-from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, read_once_per_worker
+from osgd.stage import BuildResult, PlannedShard, Stage, StageParams, WorkItem, item_taxonomy, read_once_per_worker
 from osgd.store import ShardStore
 
 log = logging.getLogger(__name__)
@@ -580,6 +581,7 @@ class SamplesStage(Stage):
     version = 6
     inputs = ("models", "grasps", "checks", "scenes")
     Params = SamplesStageParams
+    uses_taxonomy = True
     description = "Noisy depth images with boxes and task-labelled grasp rectangles."
 
     def plan(
@@ -647,7 +649,9 @@ class SamplesStage(Stage):
         empty = [row["sample_id"] for row in rows if not row["grasps"]]
         if empty:
             notes.append(f"{len(empty)} of {len(rows)} samples have no grasp (e.g. {empty[0]})")
-        return BuildResult(pa.Table.from_pylist(rows, schema=SAMPLES), notes)
+        taxonomy = item_taxonomy(item)
+        schema = SAMPLES if taxonomy == TABLE1 else samples_schema(taxonomy.vocabulary)
+        return BuildResult(pa.Table.from_pylist(rows, schema=schema), notes)
 
     def summary(self, store: ShardStore, records: Sequence[ShardRecord]) -> str:
         """Samples per split, objects and grasps per sample, grasps per task."""

@@ -12,7 +12,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from osgd.contract.taxonomy import CATEGORIES
+from osgd.contract.taxonomy import Taxonomy
 from osgd.scenes.split import SplitParams
 from osgd.stage import StageParams
 
@@ -121,13 +121,17 @@ class ScenesStageParams(StageParams):
                     "by = 'scene', draws every pile from every model and leaves the split to samples.test_fraction",
     )
 
+    def taxonomy_mistakes(self, taxonomy: Taxonomy) -> list[str]:
+        """Category weights of categories that the taxonomy has not."""
+        unknown = sorted(set(self.category_weights) - set(taxonomy.category_names))
+        if unknown:
+            return [f"category_weights names unknown categories {unknown}; known: {list(taxonomy.category_names)}"]
+        return []
+
     @model_validator(mode="after")
     def _check_ranges(self) -> ScenesStageParams:
         if self.max_objects < self.min_objects:
             raise ValueError(f"max_objects ({self.max_objects}) is below min_objects ({self.min_objects})")
-        unknown = sorted(set(self.category_weights) - set(CATEGORIES))
-        if unknown:
-            raise ValueError(f"category_weights names unknown categories {unknown}; known: {list(CATEGORIES)}")
         negative = {name: weight for name, weight in self.category_weights.items() if weight < 0}
         if negative:
             raise ValueError(f"category_weights must not be negative: {negative}")
