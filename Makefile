@@ -10,11 +10,12 @@ DATA_DIR ?= data
 PIPELINE ?= pipelines/default.toml
 WORKERS ?=
 
-.PHONY: help install system-deps test test-slow test-all lint dataset golden golden-update bench clean-data table table-gpu
+.PHONY: help install system-deps test test-slow test-all lint dataset kitchen golden golden-update bench clean-data table table-gpu
 
 help:
 	@echo "make test       install into .venv and run the tests (the CI entry point)"
 	@echo "make dataset    install and build the default dataset into $(DATA_DIR)/"
+	@echo "make kitchen    the kitchen example taxonomy (docs/taxonomy.md): its meshes, then its dataset in $(DATA_DIR)/"
 	@echo "make golden     rebuild the golden pipeline and compare with data/manifests/"
 	@echo "make bench      run every stage benchmark"
 	@echo "make table      train and evaluate the five models of Table II (the CPU recipe: 1 h per model)"
@@ -53,6 +54,13 @@ lint: install
 
 dataset: install
 	$(BIN)/osgd --data-dir $(DATA_DIR) $(if $(WORKERS),--workers $(WORKERS)) run $(PIPELINE)
+
+# The kitchen example (docs/taxonomy.md): a taxonomy of Table I plus a mug, scissors and a whisk, its meshes written
+# by a script into $(DATA_DIR)/kitchen-tools, then its dataset.
+kitchen: install
+	$(BIN)/python pipelines/kitchen/make_tools.py $(DATA_DIR)/kitchen-tools
+	OSGD_KITCHEN_TOOLS=$(abspath $(DATA_DIR))/kitchen-tools $(BIN)/osgd --data-dir $(DATA_DIR) \
+		$(if $(WORKERS),--workers $(WORKERS)) run pipelines/kitchen.toml
 
 golden: install
 	$(BIN)/python -m pytest -q -m '' tests/test_golden.py

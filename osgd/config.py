@@ -57,8 +57,9 @@ class PipelineSection(BaseModel):
     seed : int
         Every random draw of every stage derives from it.
     taxonomy : str
-        A taxonomy file that extends Table I (``docs/taxonomy.md``), relative to the config's folder; empty
-        for the packaged Table I. Its content, not its path, enters the keys of the shards it labels.
+        A taxonomy file that extends Table I (``docs/taxonomy.md``), relative to the config's folder (held
+        resolved); empty for the packaged Table I. Its content, not its path, enters the keys of the shards
+        it labels.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -285,6 +286,8 @@ def build_config(
     )
 
     taxonomy = _pipeline_taxonomy(pipeline.taxonomy, origin, base_dir)
+    if pipeline.taxonomy and base_dir is not None:  # a config written out (config_to_toml) names the same file
+        pipeline = pipeline.model_copy(update={"taxonomy": str((base_dir / pipeline.taxonomy).resolve())})
     params: dict[str, StageParams] = {}
     for name, params_class in stage_params.items():
         values = dict(sections.get(name, {}))

@@ -137,3 +137,12 @@ def test_samples_shards_record_the_vocabulary_of_their_taxonomy() -> None:
     data = table_to_parquet_bytes(schema.empty_table(), "samples", "k" * 64)
     recorded = metadata_vocabulary(pq.read_schema(pa.BufferReader(data)).metadata, "test")
     assert recorded == {field: list(names) for field, names in KITCHEN.vocabulary.items()}
+
+
+def test_a_config_written_out_names_the_same_taxonomy(tmp_path: Path) -> None:
+    from osgd.config import config_to_toml  # noqa: PLC0415
+
+    config = load_config(ROOT / "pipelines/kitchen.toml", stage_params_classes())
+    saved = tmp_path / "kitchen.toml"
+    saved.write_text(config_to_toml(config))
+    assert load_config(saved, stage_params_classes()).taxonomy == KITCHEN == config.taxonomy
