@@ -6,9 +6,11 @@ and the evaluation document's figures of the checkpoint. ``tests/test_training_t
 subprocess and compares the result with ``tests/traces/training-trace.json``, so that a change of the
 code that should not change what is learned shows when it does.
 
-The environment pins the kernels before torch loads: ``ATEN_CPU_CAPABILITY=default`` (ATen's baseline
-vector kernels) and ``DNNL_MAX_CPU_ISA=SSE41`` (oneDNN's convolutions without AVX), so that the trace is
-the same on any x86-64 processor.
+Every kernel whose code path depends on the processor is pinned before torch loads, so that the trace is
+the same on any x86-64 processor: ``ATEN_CPU_CAPABILITY=default`` (ATen's baseline vector kernels),
+``MKL_CBWR=COMPATIBLE`` (MKL's matrix products in its processor-independent mode) and oneDNN switched off
+(``torch.backends.mkldnn``: its convolutions choose kernels and blockings by processor), so convolutions
+run as ATen's im2col and MKL's products. One thread: the order of every sum is fixed.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 os.environ.setdefault("ATEN_CPU_CAPABILITY", "default")
-os.environ.setdefault("DNNL_MAX_CPU_ISA", "SSE41")
+os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import pyarrow.parquet as pq
@@ -88,6 +90,7 @@ def trace_run(data: Path, out: Path, options: dict) -> dict:
 
 def main(path: str) -> None:
     torch.set_num_threads(1)
+    torch.backends.mkldnn.enabled = False
     with tempfile.TemporaryDirectory() as folder:
         data = golden_data(Path(folder) / "data")
         trace = {name: trace_run(data, Path(folder) / name, options) for name, options in RUNS.items()}
