@@ -22,10 +22,11 @@ import os
 import signal
 import socket
 import sys
+import tempfile
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -137,6 +138,16 @@ def die_with_parent(parent: int, interval: float = WATCHDOG_INTERVAL) -> None:
     threading.Thread(target=_watch_parent, args=(parent, interval), name="osgd-parent-watchdog", daemon=True).start()
 
 
+#: The failure of a task that took its worker process down with it.
+WORKER_DIED = "its worker process died while running it (a crash in a native library, or out of memory)"
+
+
+def _marked_call(function: Callable[[Any], Any], task: Any, mark: Path) -> Any:
+    """:func:`call_safely`, leaving ``mark`` behind first: the task started."""
+    mark.touch()
+    return call_safely(function, task)
+
+
 class ProcessPoolExecutor:
     """Runs tasks in a pool of local worker processes.
 
@@ -145,6 +156,13 @@ class ProcessPoolExecutor:
     ``fork``. Each worker is reused across tasks, so a stage can keep one
     physics client per worker. Workers end when the process that started
     them dies, however it dies (:func:`die_with_parent`): no orphans.
+
+    A task that kills its worker (a segfault in native code, the kernel's
+    out-of-memory killer) breaks the pool and every task still in it. The
+    tasks that had not started run again in a new pool; those that had
+    started run again one at a time, each alone in a pool of one worker,
+    so that the one that kills its worker again comes back as a
+    :class:`TaskFailure` (:data:`WORKER_DIED`) and the others finish.
 
     Parameters
     ----------
@@ -160,20 +178,39 @@ class ProcessPoolExecutor:
     def map_unordered(
         self, function: Callable[[Any], Any], tasks: Sequence[Any]
     ) -> Iterator[tuple[int, Any]]:
-        if not tasks:
-            return
+        waiting = list(range(len(tasks)))
+        with tempfile.TemporaryDirectory(prefix="osgd-tasks-") as folder:
+            marks = Path(folder)
+            while waiting:
+                lost = yield from self._round(function, tasks, waiting, self.workers, marks)
+                started = [index for index in lost if (marks / str(index)).exists()]
+                waiting = [index for index in lost if index not in started]
+                for index in started:
+                    if (yield from self._round(function, tasks, [index], 1, marks)):
+                        log.warning("task %d: %s", index, WORKER_DIED)
+                        yield index, TaskFailure(WORKER_DIED, "", "", WORKER_DIED)
+
+    def _round(
+        self, function: Callable[[Any], Any], tasks: Sequence[Any], indices: list[int], workers: int, marks: Path
+    ) -> Generator[tuple[int, Any], None, list[int]]:
+        """Run ``tasks[indices]`` in one pool, yielding their outcomes; returns those lost when a worker died."""
+        lost: list[int] = []
         context = multiprocessing.get_context("spawn")
         with concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(self.workers, len(tasks)), mp_context=context,
+            max_workers=min(workers, len(indices)), mp_context=context,
             initializer=die_with_parent, initargs=(os.getpid(),),
         ) as pool:
-            futures = {pool.submit(call_safely, function, task): index for index, task in enumerate(tasks)}
+            futures = {pool.submit(_marked_call, function, tasks[index], marks / str(index)): index
+                       for index in indices}
             for future in concurrent.futures.as_completed(futures):
                 index = futures[future]
                 try:
                     yield index, future.result()
-                except Exception as error:  # the worker died, or the result did not pickle
+                except concurrent.futures.process.BrokenProcessPool:
+                    lost.append(index)
+                except Exception as error:  # the result did not pickle
                     yield index, failure_of(error)
+        return sorted(lost)
 
 
 class ExecutorError(RuntimeError):

@@ -21,7 +21,7 @@ from toy_stage import ToyParams, ToyStage
 
 from osgd.config import ConfigError, build_config
 from osgd.contract.shards import ShardError, file_sha256
-from osgd.executor import ProcessPoolExecutor, SerialExecutor
+from osgd.executor import WORKER_DIED, ProcessPoolExecutor, SerialExecutor, TaskFailure
 from osgd.stage import run_stage
 from osgd.store import ShardStore, shard_key
 
@@ -158,6 +158,21 @@ def test_a_failing_item_is_reported_and_the_others_survive(tmp_path: Path) -> No
     store = ShardStore(tmp_path)
     done = [shard.item.item_id for shard in shards if store.is_done("checks", shard.key)]
     assert done == [shard.item.item_id for shard in shards if shard.item.item_id != "toy_002"]
+
+
+def _square_or_crash(task: int) -> int:
+    """A task of the pool: task 3 kills its worker as a segfault in native code would."""
+    if task == 3:
+        os.kill(os.getpid(), signal.SIGSEGV)
+    return task * task
+
+
+def test_a_task_that_kills_its_worker_fails_alone_and_the_others_finish() -> None:
+    results = dict(ProcessPoolExecutor(2).map_unordered(_square_or_crash, list(range(7))))
+    assert sorted(results) == list(range(7))
+    assert isinstance(results[3], TaskFailure) and results[3].error == WORKER_DIED
+    assert {index: result for index, result in results.items() if index != 3} == {
+        index: index * index for index in range(7) if index != 3}
 
 
 def _toy_command(root: Path, workers: int, items: int) -> list[str]:

@@ -35,7 +35,11 @@ grows with the faces and the noise; quadric edge collapse to a few thousand
 faces is quick, smooths the sensor noise away and leaves the hulls as close
 to the true solid or closer (``bench_decomposition.py``, docs/models.md).
 The collapse may leave a few edges shared by four faces; coacd cuts such a
-mesh without remeshing as it does a closed one.
+mesh without remeshing as it does a closed one. coacd runs on a user's mesh
+in a process of its own (:func:`_run_coacd_isolated`): its native code
+crashes on some closed meshes when it cuts them without remeshing, and a
+crash then costs that one decomposition, which runs again with coacd's
+remesh on (a note says so), never the process of the stage.
 
 Cache: ``<cache_dir>/<key>.npz`` where ``key`` is the sha256 of the mesh's
 vertex and face bytes, the coacd version and *every* coacd parameter
@@ -49,11 +53,14 @@ and never fatal.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import hashlib
 import io
 import json
 import logging
+import multiprocessing
+import os
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -62,6 +69,7 @@ from typing import Any, Final
 import numpy as np
 import trimesh
 
+from osgd.executor import die_with_parent
 from osgd.store import atomic_write_bytes, canonical_json
 
 log = logging.getLogger(__name__)
@@ -349,6 +357,38 @@ def _run_coacd(
     return parts
 
 
+class CoacdCrashed(RuntimeError):
+    """coacd's native code ended its process on a mesh."""
+
+
+def _run_coacd_isolated(
+    vertices: np.ndarray, faces: np.ndarray, parameters: CoacdParameters
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`_run_coacd` in a child process (spawned, ends with this one); its crash raises :class:`CoacdCrashed`."""
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(
+        max_workers=1, mp_context=context, initializer=die_with_parent, initargs=(os.getpid(),)
+    ) as pool:
+        try:
+            return pool.submit(_run_coacd, vertices, faces, parameters).result()
+        except concurrent.futures.process.BrokenProcessPool as error:
+            raise CoacdCrashed(f"coacd's process died (preprocess_mode={parameters.preprocess_mode!r})") from error
+
+
+def _scan_parts(
+    vertices: np.ndarray, faces: np.ndarray, parameters: CoacdParameters, description: dict[str, Any],
+    notes: list[str],
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """coacd on a user's mesh, isolated; after a crash once more with its manifold remesh on (in ``description``)."""
+    try:
+        return _run_coacd_isolated(vertices, faces, parameters)
+    except CoacdCrashed as error:
+        remeshing = dataclasses.replace(parameters, preprocess_mode="on")
+        notes.append(f"{error} on the repaired mesh; decomposed it again with coacd's manifold remesh on")
+        description.update(parameters=remeshing.as_dict(), crashed=parameters.as_dict())
+        return _run_coacd_isolated(vertices, faces, remeshing)
+
+
 def _parts_digest(parts: list[tuple[np.ndarray, np.ndarray]]) -> str:
     """sha256 over the shapes and bytes of every part, in order."""
     digest = hashlib.sha256()
@@ -451,7 +491,8 @@ def decompose(
         parts = _hull_parts(vertices, faces)
     else:
         try:
-            parts = _run_coacd(vertices, faces, parameters)
+            parts = (_scan_parts(vertices, faces, parameters, description, notes) if preset == "scan"
+                     else _run_coacd(vertices, faces, parameters))
         except Exception as error:
             parts, reason = [], f"coacd raised {error!r}"
         else:
@@ -460,7 +501,7 @@ def decompose(
             notes.append(f"{reason}; using the convex hull as the collision shape")
             description = {"method": "convex_hull", "preset": preset, "fallback_from": description}
             parts = _hull_parts(vertices, faces)
-    if path is not None and not notes:
+    if path is not None and not notes:  # a crash or a fallback runs again: the description says what ran
         _save(path, key, parts)
     elif path is not None:  # a fallback is not cached: nor may a bad file stay
         path.unlink(missing_ok=True)
