@@ -445,20 +445,37 @@ ModelArgument = Annotated[
 ]
 
 
+TaxonomyOption = Annotated[
+    Path | None,
+    typer.Option("--taxonomy", help="The pipeline's taxonomy file ([pipeline] taxonomy), for the names and colours of "
+                 "its own parts and tasks; default: Table I's."),
+]
+
+
+def _shown_taxonomy(path: Path | None) -> Taxonomy:
+    """The taxonomy a picture names parts and tasks by; one line and exit 2 on a bad file."""
+    if path is None:
+        return TABLE1
+    try:
+        return read_taxonomy(path)
+    except (FileNotFoundError, TaxonomyError) as error:
+        _fail(str(error))
+
+
 @show_app.command("model")
-def show_model(model_id: ModelArgument, out: OutOption) -> None:
+def show_model(model_id: ModelArgument, out: OutOption, taxonomy: TaxonomyOption = None) -> None:
     """A model's mesh coloured by part, with its principal axis and how its parts were found."""
     from osgd.models.pictures import show_model as draw  # noqa: PLC0415 (keeps --help fast)
 
-    _call_with_store(draw, model_id=model_id, out=out)
+    _call_with_store(draw, model_id=model_id, out=out, taxonomy=_shown_taxonomy(taxonomy))
 
 
 @show_app.command("models")
-def show_models(out: OutOption) -> None:
+def show_models(out: OutOption, taxonomy: TaxonomyOption = None) -> None:
     """A contact sheet of every model in the data dir."""
     from osgd.models.pictures import show_models as draw  # noqa: PLC0415 (keeps --help fast)
 
-    _call_with_store(draw, out=out)
+    _call_with_store(draw, out=out, taxonomy=_shown_taxonomy(taxonomy))
 
 
 @show_app.command("grasps")
@@ -466,11 +483,12 @@ def show_grasps(
     model_id: ModelArgument,
     out: OutOption,
     color_by: Annotated[str, typer.Option(help="task, or stability (needs the checks table).")] = "task",
+    taxonomy: TaxonomyOption = None,
 ) -> None:
     """A model with its grasps drawn as gripper outlines."""
     from osgd.grasps.pictures import show_grasps as draw  # noqa: PLC0415 (keeps --help fast)
 
-    _call_with_store(draw, model_id=model_id, out=out, color_by=color_by)
+    _call_with_store(draw, model_id=model_id, out=out, color_by=color_by, taxonomy=_shown_taxonomy(taxonomy))
 
 
 @show_app.command("scene")

@@ -146,3 +146,27 @@ def test_a_config_written_out_names_the_same_taxonomy(tmp_path: Path) -> None:
     saved = tmp_path / "kitchen.toml"
     saved.write_text(config_to_toml(config))
     assert load_config(saved, stage_params_classes()).taxonomy == KITCHEN == config.taxonomy
+
+
+def test_pictures_name_and_colour_the_parts_of_a_pipelines_taxonomy() -> None:
+    from osgd.models.pictures import legend_handles, part_colour  # noqa: PLC0415 (matplotlib)
+
+    body = KITCHEN.part_index["body"]
+    assert [handle.get_label() for handle in legend_handles({0, body}, KITCHEN.parts)] == ["handle", "body"]
+    assert [handle.get_label() for handle in legend_handles({body})] == [f"part {body}"]  # Table I's names only
+    colours = [tuple(part_colour(index)) for index in range(len(KITCHEN.parts))]
+    assert len(set(colours)) == len(colours)  # the new parts do not take a Table I part's colour
+
+
+def test_a_mesh_that_crashes_coacd_costs_one_decomposition_not_the_process() -> None:
+    from osgd.models.decomposition import decompose  # noqa: PLC0415 (coacd)
+
+    rng = np.random.default_rng([0, 2])  # make_tools.py's scissors_02, which coacd's cut without remesh crashed on
+    mesh = [make_tools().scissors(rng) for _ in range(3)][-1]
+    result = decompose(np.asarray(mesh.vertices), np.asarray(mesh.faces), "scan")
+    assert result.description["method"] == "coacd" and len(result.parts) > 1
+    if result.notes:  # where coacd crashes on it: the note, and the description says what ran instead
+        assert result.notes == ["coacd's process died (preprocess_mode='off') on the repaired mesh; decomposed it "
+                                "again with coacd's manifold remesh on"]
+        assert result.description["parameters"]["preprocess_mode"] == "on"
+        assert result.description["crashed"]["preprocess_mode"] == "off"

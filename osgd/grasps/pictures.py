@@ -4,7 +4,7 @@ The mesh is drawn flat, faces tinted by part, in two views along its
 principal axes: looking down the thinnest axis and looking down the middle
 one. Each grasp is a gripper outline (the two fingers at the opening, the
 palm bar and a short stem pointing back along the approach), coloured by
-task label (``taxonomy.TASK_COLOURS``) or by the check stage's verdict. The
+task label (``taxonomy.task_palette`` of the pipeline's tasks) or by the check stage's verdict. The
 first column shows every grasp, the others one task label each, so a person
 can see at a glance that, say, every "hammer" grasp sits on the handle and
 every "hand over" grasp on the head.
@@ -20,20 +20,23 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from osgd.contract.schemas import mesh_from_arrow, vectors_from_arrow
-from osgd.contract.taxonomy import PARTS, TASK_COLOURS, TASKS, task_palette
+from osgd.contract.taxonomy import PARTS, TABLE1, Taxonomy, task_palette
 from osgd.gripper import PANDA, Gripper
 from osgd.models.rows import find_model
 from osgd.store import ShardStore
 
+#: Face tints of the parts of a pipeline's own taxonomy (after Table I's), in turn.
+EXTRA_PART_COLORS: tuple[str, ...] = ("#e5d8bd", "#b3e2cd", "#fddaec", "#cbd5e8", "#f1e2cc", "#e6f5c9")
+
 
 def _part_colour(part: int) -> str:
-    """A part's face tint; a part of a pipeline's own taxonomy (after Table I's) takes one of Table I's in turn."""
-    return PART_COLORS[part] if part in PART_COLORS else PART_COLORS[part % len(PARTS)]
+    """A part's face tint; a part of a pipeline's own taxonomy (after Table I's) takes one of the extra tints."""
+    return PART_COLORS[part] if part in PART_COLORS else EXTRA_PART_COLORS[(part - len(PARTS)) % len(EXTRA_PART_COLORS)]
 
 
-def _part_name(part: int) -> str:
-    """Table I's name of a part; ``part N`` for a part of a pipeline's own taxonomy."""
-    return "unknown part" if part < 0 else PARTS[part] if part < len(PARTS) else f"part {part}"
+def _part_name(part: int, names: tuple[str, ...]) -> str:
+    """The name of a part in ``names`` (a taxonomy's parts); ``part N`` for one it has not."""
+    return "unknown part" if part < 0 else names[part] if part < len(names) else f"part {part}"
 
 
 #: A matplotlib colour: a name or hex string, or (r, g, b) floats in [0, 1].
@@ -200,7 +203,9 @@ def _draw_view(
         axis.set_title(f"{title} ({len(chosen)})" if row == 0 else view_name, fontsize=9)
 
 
-def _add_legend(figure, labels: list[str], colors: Mapping[str, Colour], face_parts: np.ndarray) -> None:
+def _add_legend(
+    figure, labels: list[str], colors: Mapping[str, Colour], face_parts: np.ndarray, part_names: tuple[str, ...]
+) -> None:
     """The figure's legend: the colour of each label drawn, then the tint of each part.
 
     Parameters
@@ -219,7 +224,7 @@ def _add_legend(figure, labels: list[str], colors: Mapping[str, Colour], face_pa
     shown = [label for label in colors if label in labels]
     handles = [Line2D([], [], color=colors[label], label=label) for label in shown]
     part_handles = [
-        Patch(color=_part_colour(int(part)), label=_part_name(int(part))) for part in np.unique(face_parts)
+        Patch(color=_part_colour(int(part)), label=_part_name(int(part), part_names)) for part in np.unique(face_parts)
     ]
     figure.legend(handles=handles + part_handles, loc="lower center", ncol=min(len(handles) + len(part_handles), 8),
                   fontsize=8, frameon=False)
@@ -231,6 +236,7 @@ def show_grasps(
     out: str | Path,
     color_by: str = "task",
     gripper: Gripper = PANDA,
+    taxonomy: Taxonomy = TABLE1,
 ) -> str:
     """Draw a model with its grasps as gripper outlines and write a PNG.
 
@@ -244,6 +250,8 @@ def show_grasps(
     color_by : {"task", "stability"}
         Colour by task label, or by the ``checks`` table's ``stable`` column.
     gripper : Gripper
+    taxonomy : Taxonomy
+        The pipeline's: the names of its parts, and its tasks' colours.
 
     Returns
     -------
@@ -275,15 +283,15 @@ def show_grasps(
     grasps = _model_grasps(store, identity)
 
     tasks = grasps.column("task").to_pylist()
+    vocabulary = [*taxonomy.tasks, *sorted(set(tasks) - set(taxonomy.tasks))]  # with any the taxonomy has not
     if color_by == "task":
-        extra = sorted(set(tasks) - set(TASKS))  # the tasks of a pipeline's own taxonomy, after Table I's
-        labels, colors = tasks, TASK_COLOURS if not extra else task_palette([*TASKS, *extra])
+        labels, colors = tasks, task_palette(vocabulary)
     else:
         labels, colors = _stability(store, identity, grasps.column("grasp_id").to_numpy()), STABILITY_COLORS
     segments, contacts = _grasp_segments(grasps, gripper)
     views = _principal_views(vertices)
 
-    task_groups = [task for task in (*TASKS, *sorted(set(tasks) - set(TASKS))) if task in tasks]
+    task_groups = [task for task in vocabulary if task in tasks]
     columns = [("all grasps", np.ones(len(tasks), dtype=bool))]
     columns += [(f'"{task}"', np.array([value == task for value in tasks])) for task in task_groups]
     figure, panels = plt.subplots(
@@ -291,7 +299,7 @@ def show_grasps(
     )
     for row, view in enumerate(views):
         _draw_view(panels, row, view, (vertices, faces, face_parts), columns, (segments, contacts, labels, colors))
-    _add_legend(figure, labels, colors, face_parts)
+    _add_legend(figure, labels, colors, face_parts, taxonomy.parts)
     figure.suptitle(f"{name} ({category}, {identity}): {grasps.num_rows} grasps coloured by {color_by}", fontsize=10)
     figure.tight_layout(rect=(0, 0.06, 1, 0.95))
     out = Path(out)

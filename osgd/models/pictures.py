@@ -24,7 +24,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.patches import Patch
 
 from osgd.contract.schemas import mesh_from_arrow
-from osgd.contract.taxonomy import PARTS
+from osgd.contract.taxonomy import PARTS, TAB20, TABLE1, Taxonomy
 from osgd.models.parts import PrincipalFrame, parts_method, principal_frame
 from osgd.models.rows import find_model, model_tables
 from osgd.store import ShardStore
@@ -78,6 +78,14 @@ class View:
         return ((np.asarray(points, dtype=np.float64) - self.centre) @ self.rotation.T)[:, :2]
 
 
+def part_colour(index: int) -> np.ndarray:
+    """The colour of a part (its index in the taxonomy's parts): Table I's own, then the light shades of tab20 in turn
+    for the parts of a pipeline's own taxonomy."""
+    if index < len(PARTS):
+        return PART_COLOURS[index]
+    return np.array(TAB20[(2 * (index - len(PARTS)) + 1) % len(TAB20)])
+
+
 def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray) -> View:
     """Draw a mesh into 2-D axes, coloured by part and shaded.
 
@@ -100,7 +108,8 @@ def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_part
     normals = normals / np.where(norms > 0, norms, 1.0)[:, None]
     # Two-sided shading: authored meshes are often open or wound either way.
     light = np.abs(normals @ np.array([0.3, 0.4, -0.866]))
-    colours = np.where((face_parts >= 0)[:, None], PART_COLOURS[np.clip(face_parts, 0, len(PARTS) - 1)], UNKNOWN_COLOUR)
+    palette = np.array([part_colour(index) for index in range(max(int(face_parts.max(initial=0)) + 1, len(PARTS)))])
+    colours = np.where((face_parts >= 0)[:, None], palette[np.clip(face_parts, 0, None)], UNKNOWN_COLOUR)
     colours = colours * (0.35 + 0.65 * light)[:, None]
     # Painter's algorithm: farthest faces (largest depth) first.
     order = np.argsort(-triangles[:, :, 2].mean(axis=1), kind="stable")
@@ -118,11 +127,10 @@ def draw_mesh(axes: plt.Axes, vertices: np.ndarray, faces: np.ndarray, face_part
     return view
 
 
-def legend_handles(parts: set[int]) -> list[Patch]:
-    """Legend entries for the parts seen (indices into PARTS, -1 unknown), in PARTS order; a part of a
-    pipeline's own taxonomy (after Table I's) is ``part N``, in the colour of Table I's last part."""
-    handles = [Patch(color=PART_COLOURS[min(index, len(PARTS) - 1)],
-                     label=PARTS[index] if index < len(PARTS) else f"part {index}")
+def legend_handles(parts: set[int], names: tuple[str, ...] = PARTS) -> list[Patch]:
+    """Legend entries for the parts seen (indices into ``names``, a taxonomy's parts; -1 unknown), in that order;
+    a part that ``names`` does not have is ``part N``."""
+    handles = [Patch(color=part_colour(index), label=names[index] if index < len(names) else f"part {index}")
                for index in sorted(p for p in parts if p >= 0)]
     if -1 in parts:
         handles.append(Patch(color=UNKNOWN_COLOUR, label="unknown"))
@@ -130,19 +138,19 @@ def legend_handles(parts: set[int]) -> list[Patch]:
 
 
 def _working_direction(
-    vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray, category: str
+    vertices: np.ndarray, faces: np.ndarray, face_parts: np.ndarray, category: str, taxonomy: Taxonomy
 ) -> tuple[PrincipalFrame, float | None]:
     """The mesh's principal frame turned so that *t* points to the working end, and the category's split.
 
     The direction is the label rules' own (:func:`osgd.grasps.labels.tool_axis`
-    with the category's default rule); the split is None when the mesh has
+    with the category's default rule in ``taxonomy``); the split is None when the mesh has
     no axis to tell (no handle or no working part).
     """
-    from osgd.grasps.labels import DEFAULT_RULES, tool_axis  # noqa: PLC0415 (grasps come after models)
+    from osgd.grasps.labels import default_rules, tool_axis  # noqa: PLC0415 (grasps come after models)
 
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     frame = principal_frame(mesh)
-    rule = DEFAULT_RULES.get(category)
+    rule = default_rules(taxonomy).get(category)
     axis = tool_axis(mesh, face_parts, rule) if rule is not None else None
     if axis is None:
         return frame, None
@@ -183,14 +191,14 @@ def draw_axis(axes: plt.Axes, view: View, frame: PrincipalFrame, split: float | 
                           ha="center", fontsize=8)
 
 
-def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
+def show_model(store: ShardStore, model_id: str, out: str | Path, taxonomy: Taxonomy = TABLE1) -> str:
     """Write a PNG of one model coloured by part, with its principal axis and a legend.
 
     The title says how the parts were found (procedural, sidecar,
     automatic with its confidence, none); the dashed principal axis runs
     from the handle end to the working end, so a wrong head shows at a glance,
     and a bar across it marks where the label rules' category task gives way
-    to hand over (docs/grasps.md, ``split``).
+    to hand over (docs/grasps.md, ``split``). The legend names the parts of ``taxonomy`` (the pipeline's).
 
     Raises
     ------
@@ -205,7 +213,7 @@ def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
     method, confidence = parts_method(row["source"], provenance)
     figure, axes = plt.subplots(figsize=(8, 5), dpi=120)
     view = draw_mesh(axes, vertices, faces, face_parts)
-    draw_axis(axes, view, *_working_direction(vertices, faces, face_parts, row["category"]))
+    draw_axis(axes, view, *_working_direction(vertices, faces, face_parts, row["category"], taxonomy))
     found = {
         "procedural": "the generator's parts",
         "sidecar": "parts from the sidecar's regions",
@@ -217,15 +225,16 @@ def show_model(store: ShardStore, model_id: str, out: str | Path) -> str:
         f"{row['mass'] * 1000:.0f} g, {len(faces)} faces, {len(row['convex_parts'])} convex parts\n{found}",
         fontsize=9,
     )
-    axes.legend(handles=legend_handles(set(face_parts.tolist())), loc="lower right", fontsize=8)
+    axes.legend(handles=legend_handles(set(face_parts.tolist()), taxonomy.parts), loc="lower right", fontsize=8)
     figure.tight_layout()
     figure.savefig(out)
     plt.close(figure)
     return f"wrote {out}"
 
 
-def show_models(store: ShardStore, out: str | Path) -> str:
-    """Write a contact sheet of every model in the data dir (sorted by category, then name).
+def show_models(store: ShardStore, out: str | Path, taxonomy: Taxonomy = TABLE1) -> str:
+    """Write a contact sheet of every model in the data dir (sorted by category, then name); the legend names the
+    parts of ``taxonomy``.
 
     Raises
     ------
@@ -252,7 +261,7 @@ def show_models(store: ShardStore, out: str | Path) -> str:
         axes.set_title(f"{row['name']}\n{row['length'] * 100:.1f} cm", fontsize=6)
     for axes in grid.flat[count:]:
         axes.axis("off")
-    figure.legend(handles=legend_handles(seen_parts), loc="upper center", ncol=11, fontsize=8)
+    figure.legend(handles=legend_handles(seen_parts, taxonomy.parts), loc="upper center", ncol=11, fontsize=8)
     figure.tight_layout(rect=(0, 0, 1, 1 - 0.5 / (1.3 * rows_count + 0.6)))
     figure.savefig(out)
     plt.close(figure)

@@ -1,6 +1,6 @@
 """Meshes of the kitchen taxonomy's tools, with their sidecars: a user's folder of the models stage.
 
-    python pipelines/kitchen/make_tools.py data/kitchen-tools [--count 8] [--seed 0]
+    python pipelines/kitchen/make_tools.py data/kitchen-tools [--count 3] [--seed 0]
 
 writes ``count`` mugs, scissors and whisks (``pipelines/kitchen/taxonomy.toml``), each a binary PLY in
 metres built with trimesh (``scale = 1``), with its sidecar (``docs/models.md``, "Users' meshes and the sidecar"); each
@@ -50,8 +50,10 @@ def mug(rng: np.random.Generator) -> tuple[trimesh.Trimesh, np.ndarray]:
     body.apply_translation([0.0, 0.0, height / 2])
     bottom = trimesh.creation.cylinder(radius=radius - wall * 0.5, height=wall, sections=SECTIONS)
     bottom.apply_translation([0.0, 0.0, wall / 2])
-    span = rng.uniform(0.024, 0.032)  # half the handle's height
-    handle = _ring(span, rng.uniform(0.005, 0.007), stretch=rng.uniform(0.6, 0.8))
+    # The handle: half an elliptic loop, 4.8-5.6 cm tall and 8-11 mm thick, standing 2.5-3.6 cm proud of the wall
+    # (its centre line): room for a gripper's fingers, which reach 2.25 cm past the grasp centre.
+    span = rng.uniform(0.024, 0.028)  # half the handle's height
+    handle = _ring(span, rng.uniform(0.004, 0.0055), stretch=rng.uniform(1.25, 1.45))
     handle = handle.slice_plane([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], cap=True)  # the outer half of the loop
     handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1.0, 0.0, 0.0]))
     handle.apply_translation([radius - wall, 0.0, height * rng.uniform(0.5, 0.58)])
@@ -128,7 +130,7 @@ WRITERS: dict[str, Callable[[Path, str, np.random.Generator], None]] = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="where the meshes and sidecars go (created)")
-    parser.add_argument("--count", type=int, default=8, help="tools per category (default 8)")
+    parser.add_argument("--count", type=int, default=3, help="tools per category (default 3)")
     parser.add_argument("--seed", type=int, default=0, help="the seed of the sizes (default 0)")
     args = parser.parse_args()
     args.folder.mkdir(parents=True, exist_ok=True)
