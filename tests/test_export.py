@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 from test_samples_fixtures import write_fixture_inputs
 
 from osgd.contract.encoding import decode_depth
 from osgd.contract.samples import iter_samples
-from osgd.contract.taxonomy import CATEGORIES, TASK_FILE_STEM, TASKS
+from osgd.contract.schemas import samples_schema
+from osgd.contract.taxonomy import CATEGORIES, TASK_FILE_STEM, TASKS, read_taxonomy
 from osgd.samples.export import export
 from osgd.samples.projection import rectangles_from_corners, wrap_half_turn
 from osgd.samples.stage import SamplesStage, SamplesStageParams, sample_payload
@@ -99,3 +102,28 @@ def test_unknown_format_is_refused(samples_store, tmp_path):
 def test_empty_data_dir_says_so(tmp_path):
     with pytest.raises(FileNotFoundError, match="no samples"):
         export(ShardStore(tmp_path / "empty"), tmp_path / "out", "osgd")
+
+
+def test_a_taxonomys_own_category_and_task_are_exported(samples_store, tmp_path):
+    """The fixture's samples relabelled into the kitchen taxonomy: its first object a mug, held for pouring."""
+    kitchen = read_taxonomy(Path(__file__).resolve().parents[1] / "pipelines/kitchen/taxonomy.toml")
+    rows = samples_store.read("samples", "e" * 64).to_pylist()
+    first = rows[0]
+    mug = first["objects"][0]["object_index"]
+    first["objects"][0]["category"] = "mug"
+    for grasp in first["grasps"]:
+        if grasp["object_index"] == mug:
+            grasp["task"] = "pour"
+    store = ShardStore(tmp_path / "kitchen")
+    store.write("samples", "f" * 64, "samples_scenes_0000",
+                pa.Table.from_pylist(rows, schema=samples_schema(kitchen.vocabulary)))
+    export(store, tmp_path / "coco", "coco")
+    document = json.loads((tmp_path / "coco" / first["split"] / f"{first['split']}.json").read_text())
+    assert [category["name"] for category in document["categories"]] == list(kitchen.category_names)
+    image = next(image["id"] for image in document["images"] if image["sample_id"] == first["sample_id"])
+    names = {category["id"]: category["name"] for category in document["categories"]}
+    assert names[next(entry["category_id"] for entry in document["annotations"] if entry["image_id"] == image)] == "mug"
+    export(store, tmp_path / "osgd", "osgd")
+    lines = (tmp_path / "osgd" / first["split"] / f"{first['sample_id']}.txt").read_text().splitlines()
+    pours = sum(grasp["object_index"] == mug for grasp in first["grasps"])
+    assert pours > 0 and sum(line.split()[9] == "pour" for line in lines) == pours
