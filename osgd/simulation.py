@@ -71,6 +71,7 @@ import pyarrow as pa
 from osgd.camera import CameraIntrinsics
 from osgd.checks.hand import FINGER_A, FINGER_B, SimulatedHand, create_hand
 from osgd.config import ConfigError, PipelineConfig
+from osgd.contract.taxonomy import TABLE1, Taxonomy
 from osgd.grasps.labels import effective_rules
 from osgd.grasps.model_grasps import GraspAnnotator, ModelInput
 from osgd.grasps.params import GraspsStageParams
@@ -124,7 +125,8 @@ __all__ = [
 ]
 
 
-def grasp_annotator(model: pa.Table, params: GraspsStageParams, gripper: Gripper, seed: int) -> GraspAnnotator:
+def grasp_annotator(model: pa.Table, params: GraspsStageParams, gripper: Gripper, seed: int,
+                    taxonomy: Taxonomy = TABLE1) -> GraspAnnotator:
     """The grasps stage's annotator of one model: its label rule and its surface samples.
 
     Parameters
@@ -136,8 +138,11 @@ def grasp_annotator(model: pa.Table, params: GraspsStageParams, gripper: Gripper
     gripper : Gripper
     seed : int
         The pipeline seed (the surface samples derive from it and the model id).
+    taxonomy : Taxonomy
+        The pipeline's (its parts and label rules).
     """
-    return GraspAnnotator(ModelInput.from_table(model, 0), params, effective_rules(params.label_rules), gripper, seed)
+    return GraspAnnotator(ModelInput.from_table(model, 0, taxonomy), params,
+                          effective_rules(params.label_rules, taxonomy), gripper, seed)
 
 
 def pose_label(annotator: GraspAnnotator, position: np.ndarray, rotation: np.ndarray, opening: float) -> str:

@@ -20,6 +20,7 @@ from osgd.models import parts, user
 from osgd.pipeline import plan_pipeline, stage_params_classes
 from osgd.stage import TAXONOMY_KEY
 from osgd.store import table_to_parquet_bytes
+from togcrf.robot.protocol import protocol_trials
 
 ROOT = Path(__file__).resolve().parents[1]
 KITCHEN = read_taxonomy(ROOT / "pipelines/kitchen/taxonomy.toml")
@@ -170,3 +171,14 @@ def test_a_mesh_that_crashes_coacd_costs_one_decomposition_not_the_process() -> 
                                 "again with coacd's manifold remesh on"]
         assert result.description["parameters"]["preprocess_mode"] == "on"
         assert result.description["crashed"]["preprocess_mode"] == "off"
+
+
+def test_the_robot_protocol_tries_a_taxonomys_own_tasks_and_keeps_table_ones_piles() -> None:
+    eligible = {"no task": ["mug"], "hand over": ["whisk"]}
+    table1 = protocol_trials(0, eligible, tool_trials=2, named_trials=2)
+    kitchen = protocol_trials(0, eligible, tool_trials=2, named_trials=2, taxonomy=KITCHEN)
+    assert [trial.task for trial in kitchen[len(table1):]] == ["pour", "pour", "stir", "stir"]
+    assert kitchen[: len(table1)] == table1  # Table I's tasks meet the same piles and named categories
+    assert len({trial.scene_index for trial in kitchen}) == len(kitchen)
+    with pytest.raises(ValueError, match="unknown task 'pour'"):
+        protocol_trials(0, eligible, tasks=["pour"])

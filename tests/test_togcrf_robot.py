@@ -23,6 +23,7 @@ from helpers import write_synthetic_samples
 from typer.testing import CliRunner
 
 from osgd.contract.samples import iter_samples
+from osgd.contract.taxonomy import TASKS
 from osgd.pipeline import load_pipeline
 from osgd.samples.renderer import make_renderer
 from osgd.store import ShardStore, canonical_json
@@ -267,7 +268,7 @@ def test_a_checkpoint_policy_takes_test_time_views(tmp_path: Path) -> None:
     plain = replace(viewed, views=1)
     assert viewed.views == 8 and viewed.name == "tog:run [8 views]"
     observation = SimpleNamespace(depth=next(iter_samples(tmp_path / "data", pipeline="synthetic")).depth)
-    trial = Trial("hand over", 0, "hammer", 0)
+    trial = Trial("hand over", TASKS.index("hand over"), 0, "hammer", 0)
     plain.choose(trial, observation)
     viewed.choose(trial, observation)
     assert len(plain.last_detections.scores) > 0

@@ -17,7 +17,7 @@ import typer
 
 from togcrf.checkpoint import checkpoint_path, read_checkpoint
 from togcrf.evaluate import command_line, write_json
-from togcrf.robot.protocol import TABLE_TASKS, check_fresh, protocol_trials
+from togcrf.robot.protocol import check_fresh, protocol_trials
 from togcrf.robot.report import format_table3, policy_tables, read_logs, reason_counts, timing_summary, write_log
 from togcrf.tta import check_view_count
 
@@ -47,13 +47,14 @@ def novel_tools(checkpoints: list[Path], tools: set[str]) -> dict[str, int | Non
     return counts
 
 
-def _tasks(text: str | None) -> tuple[str, ...]:
+def _tasks(text: str | None, known: tuple[str, ...]) -> tuple[str, ...]:
+    """The tasks of ``--tasks`` among ``known`` (the pipeline's taxonomy's); all of them when not given."""
     if text is None:
-        return TABLE_TASKS
+        return known
     tasks = tuple(name.strip() for name in text.split(",") if name.strip())
-    unknown = [task for task in tasks if task not in TABLE_TASKS]
+    unknown = [task for task in tasks if task not in known]
     if unknown:
-        raise ValueError(f"--tasks: unknown {unknown}; tasks are {list(TABLE_TASKS)}")
+        raise ValueError(f"--tasks: unknown {unknown}; tasks are {list(known)}")
     return tasks
 
 
@@ -85,7 +86,7 @@ def robot_eval_command(
     baselines: Annotated[str, typer.Option(help="Comma-separated: oracle, random ('' for none).")] = "oracle,random",
     tool_trials: Annotated[int, typer.Option(help="Trials per tool task (paper: 10).")] = 10,
     named_trials: Annotated[int, typer.Option(help="Trials for 'no task' and for 'hand over' (paper: 30).")] = 30,
-    tasks: Annotated[str | None, typer.Option(help="Only these tasks, comma-separated (all 12).")] = None,
+    tasks: Annotated[str | None, typer.Option(help="Only these tasks, comma-separated (default: all).")] = None,
     workers: Annotated[int, typer.Option(help="Processes (the trials are split between them).")] = 1,
     min_score: Annotated[float, typer.Option(help="Checkpoints: keep detections with this score.")] = 0.5,
     min_stability: Annotated[float, typer.Option(help="Checkpoints: candidates this stable compete.")] = 0.5,
@@ -108,11 +109,12 @@ def robot_eval_command(
     overrides = tuple(set_values or ())
     policies = _policies(list(checkpoints or []), baselines)
     check_view_count(views)
-    chosen_tasks = _tasks(tasks)
     pipeline = load_pipeline(config, overrides)
+    chosen_tasks = _tasks(tasks, pipeline.taxonomy.tasks)
     check_fresh(pipeline.params["scenes"].count, (), ())
     world = load_world(data, pipeline)
-    trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks)
+    trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks,
+                             pipeline.taxonomy)
     spec = RunSpec(config, overrides, data, policies, out, min_score=min_score, min_stability=min_stability,
                    views=views, pictures=pictures, require_clear=not any_pile)
     novel = novel_tools(list(checkpoints or []), set(world.models))

@@ -130,7 +130,7 @@ class RandomPolicy:
 
     def choose(self, trial: Trial, observation: Observation) -> Choice:
         """Draw a pixel, an angle and an opening from the trial's own generator."""
-        rng = trial_rng(self.seed, trial.task, trial.repeat, 1)
+        rng = trial_rng(self.seed, trial.task_index, trial.repeat, 1)
         rows, columns = np.nonzero(observation.depth > 0)
         if not len(rows):
             return Choice(None, reason="no depth reading in the image")

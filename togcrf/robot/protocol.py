@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from osgd.contract.taxonomy import TASK_INDEX, TASKS
+from osgd.contract.taxonomy import TABLE1, TASKS, Taxonomy
 
 #: Tasks for which the paper names an object category first (Section V-C).
 NAMED_TASKS: tuple[str, ...] = ("no task", "hand over")
@@ -32,7 +32,7 @@ NAMED_TASKS: tuple[str, ...] = ("no task", "hand over")
 #: The 10 tool tasks, in Table I's order.
 TOOL_TASKS: tuple[str, ...] = tuple(task for task in TASKS if task not in NAMED_TASKS)
 
-#: The rows of Table III, in the paper's order.
+#: The rows of Table III, in the paper's order (a pipeline's own taxonomy adds its tasks after them).
 TABLE_TASKS: tuple[str, ...] = TASKS
 
 #: First scene index of the robot's piles; a pipeline's own scenes are 0 .. count - 1.
@@ -54,7 +54,9 @@ class Trial:
     Attributes
     ----------
     task : str
-        One of ``taxonomy.TASKS``.
+        One of the pipeline's taxonomy's tasks.
+    task_index : int
+        Its index there (Table I's first: a pipeline's own taxonomy extends Table I), which seeds its piles.
     repeat : int
         0, 1, ... within the task.
     category : str or None
@@ -65,6 +67,7 @@ class Trial:
     """
 
     task: str
+    task_index: int
     repeat: int
     category: str | None
     scene_index: int
@@ -75,19 +78,20 @@ class Trial:
         return f"{self.task.replace(' ', '_')}_{self.repeat:02d}"
 
 
-def scene_index(task: str, repeat: int) -> int:
-    """The scene index of a trial's first pile (>= :data:`ROBOT_SCENE_OFFSET`)."""
+def scene_index(task_index: int, repeat: int) -> int:
+    """The scene index of a trial's first pile (>= :data:`ROBOT_SCENE_OFFSET`), from its task's index."""
     if not 0 <= repeat < REPEATS_PER_TASK:
         raise ValueError(f"repeat {repeat} is outside 0..{REPEATS_PER_TASK - 1}")
-    return ROBOT_SCENE_OFFSET + (TASK_INDEX[task] * REPEATS_PER_TASK + repeat) * PILES_PER_TRIAL
+    return ROBOT_SCENE_OFFSET + (task_index * REPEATS_PER_TASK + repeat) * PILES_PER_TRIAL
 
 
-def trial_rng(seed: int, task: str, repeat: int, purpose: int) -> np.random.Generator:
-    """A generator for one trial and one purpose (0: named category, 1: random policy)."""
-    return np.random.default_rng(np.random.SeedSequence([seed % 2**64, _SALT, TASK_INDEX[task], repeat, purpose]))
+def trial_rng(seed: int, task_index: int, repeat: int, purpose: int) -> np.random.Generator:
+    """A generator for one trial (its task's index, its repeat) and one purpose (0: named category, 1: random
+    policy)."""
+    return np.random.default_rng(np.random.SeedSequence([seed % 2**64, _SALT, task_index, repeat, purpose]))
 
 
-def named_category(seed: int, task: str, repeat: int, eligible: Mapping[str, Sequence[str]]) -> str:
+def named_category(seed: int, task: str, task_index: int, repeat: int, eligible: Mapping[str, Sequence[str]]) -> str:
     """The category named for a "no task" or "hand over" trial, uniform over the eligible ones.
 
     Raises
@@ -98,11 +102,12 @@ def named_category(seed: int, task: str, repeat: int, eligible: Mapping[str, Seq
     choices = sorted(eligible.get(task, ()))
     if not choices:
         raise ValueError(f"no category of the models has a stable {task!r} grasp: the task cannot be tried")
-    return choices[int(trial_rng(seed, task, repeat, 0).integers(len(choices)))]
+    return choices[int(trial_rng(seed, task_index, repeat, 0).integers(len(choices)))]
 
 
 def protocol_trials(seed: int, eligible: Mapping[str, Sequence[str]], tool_trials: int = 10,
-                    named_trials: int = 30, tasks: Iterable[str] = TABLE_TASKS) -> list[Trial]:
+                    named_trials: int = 30, tasks: Iterable[str] | None = None,
+                    taxonomy: Taxonomy = TABLE1) -> list[Trial]:
     """The trials of the protocol, task by task in Table III's order.
 
     Parameters
@@ -114,21 +119,24 @@ def protocol_trials(seed: int, eligible: Mapping[str, Sequence[str]], tool_trial
         (:meth:`togcrf.robot.world.World.eligible_categories`).
     tool_trials, named_trials : int
         Trials per tool task (paper: 10) and per named task (paper: 30).
-    tasks : iterable of str
-        Only these tasks.
+    tasks : iterable of str, optional
+        Only these tasks; default: every task of ``taxonomy``.
+    taxonomy : Taxonomy
+        The pipeline's: its tasks, and their indices that seed the piles.
 
     Returns
     -------
     list of Trial
     """
     trials = []
-    for task in tasks:
-        if task not in TASK_INDEX:
-            raise ValueError(f"unknown task {task!r}; tasks are {list(TASKS)}")
+    for task in taxonomy.tasks if tasks is None else tasks:
+        if task not in taxonomy.tasks:
+            raise ValueError(f"unknown task {task!r}; tasks are {list(taxonomy.tasks)}")
+        index = taxonomy.tasks.index(task)
         count = named_trials if task in NAMED_TASKS else tool_trials
         for repeat in range(count):
-            category = named_category(seed, task, repeat, eligible) if task in NAMED_TASKS else None
-            trials.append(Trial(task, repeat, category, scene_index(task, repeat)))
+            category = named_category(seed, task, index, repeat, eligible) if task in NAMED_TASKS else None
+            trials.append(Trial(task, index, repeat, category, scene_index(index, repeat)))
     return trials
 
 

@@ -105,12 +105,12 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     Returns
     -------
     dict
-        Per task of :data:`TABLE_TASKS` present: ``trials``, ``gsr_s``,
+        Per task present (:func:`table_tasks` order): ``trials``, ``gsr_s``,
         ``gsr_t`` (percent); ``Total``: the mean of the task rates, as the
         paper's total; ``All trials``: pooled over every trial.
     """
     table: dict[str, dict[str, Any]] = {}
-    for task in TABLE_TASKS:
+    for task in table_tasks(rows):
         chosen = [row for row in rows if row["task"] == task]
         if chosen:
             table[task] = {"trials": len(chosen), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in chosen]),
@@ -122,6 +122,13 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
         table["All trials"] = {"trials": len(rows), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in rows]),
                                "gsr_t": 100.0 * np.mean([row["gsr_t"] for row in rows])}
     return table
+
+
+def table_tasks(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The tasks of the rows as Table III orders them: the paper's, then those of a pipeline's own taxonomy as the
+    rows first name them (the protocol's order)."""
+    present = dict.fromkeys(row["task"] for row in rows)
+    return [task for task in TABLE_TASKS if task in present] + [task for task in present if task not in TABLE_TASKS]
 
 
 def policy_tables(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, dict[str, Any]]]:
@@ -154,7 +161,9 @@ def format_table3(tables: Mapping[str, Mapping[str, Mapping[str, Any]]], paper: 
     header = ["Task", *[f"{name} GSR-S" for name in names], *[f"paper {name} GSR-S" for name in paper_names],
               *[f"{name} GSR-T" for name in names], *[f"paper {name} GSR-T" for name in paper_names], "trials"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for task in (*TABLE_TASKS, "Total", "All trials"):
+    tasks = [*TABLE_TASKS, *dict.fromkeys(task for table in tables.values() for task in table
+                                          if task not in (*TABLE_TASKS, "Total", "All trials"))]
+    for task in (*tasks, "Total", "All trials"):
         if not any(task in table for table in tables.values()):
             continue
         trials = sorted({table[task]["trials"] for table in tables.values() if task in table})

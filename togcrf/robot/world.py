@@ -119,7 +119,7 @@ class World:
         if model_id not in self._annotators:
             mask = pc.equal(self.models_table.column("model_id"), model_id)
             self._annotators[model_id] = grasp_annotator(self.models_table.filter(mask), self.params("grasps"),
-                                                         self.gripper, self.seed)
+                                                         self.gripper, self.seed, self.config.taxonomy)
         return self._annotators[model_id]
 
     def grasp_label(self, model_id: str, position: np.ndarray, rotation: np.ndarray, opening: float) -> str:
@@ -138,7 +138,7 @@ class World:
         Returns
         -------
         str
-            One of ``taxonomy.TASKS``; "no task" also when the model has no part labels.
+            One of the taxonomy's tasks; "no task" also when the model has no part labels.
         """
         return pose_label(self.annotator(model_id), position, rotation, opening)
 
