@@ -138,6 +138,14 @@ def die_with_parent(parent: int, interval: float = WATCHDOG_INTERVAL) -> None:
     threading.Thread(target=_watch_parent, args=(parent, interval), name="osgd-parent-watchdog", daemon=True).start()
 
 
+def spawned_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes that end when this process dies (:func:`die_with_parent`)."""
+    return concurrent.futures.ProcessPoolExecutor(
+        max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+        initializer=die_with_parent, initargs=(os.getpid(),),
+    )
+
+
 #: The failure of a task that took its worker process down with it.
 WORKER_DIED = "its worker process died while running it (a crash in a native library, or out of memory)"
 
@@ -195,11 +203,7 @@ class ProcessPoolExecutor:
     ) -> Generator[tuple[int, Any], None, list[int]]:
         """Run ``tasks[indices]`` in one pool, yielding their outcomes; returns those lost when a worker died."""
         lost: list[int] = []
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(
-            max_workers=min(workers, len(indices)), mp_context=context,
-            initializer=die_with_parent, initargs=(os.getpid(),),
-        ) as pool:
+        with spawned_pool(min(workers, len(indices))) as pool:
             futures = {pool.submit(_marked_call, function, tasks[index], marks / str(index)): index
                        for index in indices}
             for future in concurrent.futures.as_completed(futures):

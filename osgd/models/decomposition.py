@@ -59,8 +59,6 @@ import hashlib
 import io
 import json
 import logging
-import multiprocessing
-import os
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -69,7 +67,7 @@ from typing import Any, Final
 import numpy as np
 import trimesh
 
-from osgd.executor import die_with_parent
+from osgd.executor import spawned_pool
 from osgd.store import atomic_write_bytes, canonical_json
 
 log = logging.getLogger(__name__)
@@ -365,10 +363,7 @@ def _run_coacd_isolated(
     vertices: np.ndarray, faces: np.ndarray, parameters: CoacdParameters
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`_run_coacd` in a child process (spawned, ends with this one); its crash raises :class:`CoacdCrashed`."""
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(
-        max_workers=1, mp_context=context, initializer=die_with_parent, initargs=(os.getpid(),)
-    ) as pool:
+    with spawned_pool(1) as pool:
         try:
             return pool.submit(_run_coacd, vertices, faces, parameters).result()
         except concurrent.futures.process.BrokenProcessPool as error:

@@ -43,7 +43,7 @@ Trial log columns (:data:`TRIAL_LOG`), one row per trial and policy:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -110,7 +110,7 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
         paper's total; ``All trials``: pooled over every trial.
     """
     table: dict[str, dict[str, Any]] = {}
-    for task in table_tasks(rows):
+    for task in table_tasks(row["task"] for row in rows):
         chosen = [row for row in rows if row["task"] == task]
         if chosen:
             table[task] = {"trials": len(chosen), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in chosen]),
@@ -124,10 +124,10 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     return table
 
 
-def table_tasks(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The tasks of the rows as Table III orders them: the paper's, then those of a pipeline's own taxonomy as the
-    rows first name them (the protocol's order)."""
-    present = dict.fromkeys(row["task"] for row in rows)
+def table_tasks(tasks: Iterable[str]) -> list[str]:
+    """The tasks named, once each, as Table III orders them: the paper's, then those of a pipeline's own taxonomy
+    in the order first named (the protocol's)."""
+    present = dict.fromkeys(tasks)
     return [task for task in TABLE_TASKS if task in present] + [task for task in present if task not in TABLE_TASKS]
 
 
@@ -161,9 +161,9 @@ def format_table3(tables: Mapping[str, Mapping[str, Mapping[str, Any]]], paper: 
     header = ["Task", *[f"{name} GSR-S" for name in names], *[f"paper {name} GSR-S" for name in paper_names],
               *[f"{name} GSR-T" for name in names], *[f"paper {name} GSR-T" for name in paper_names], "trials"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    tasks = [*TABLE_TASKS, *dict.fromkeys(task for table in tables.values() for task in table
-                                          if task not in (*TABLE_TASKS, "Total", "All trials"))]
-    for task in (*tasks, "Total", "All trials"):
+    summaries = ("Total", "All trials")
+    tasks = table_tasks(task for table in tables.values() for task in table if task not in summaries)
+    for task in (*tasks, *summaries):
         if not any(task in table for table in tables.values()):
             continue
         trials = sorted({table[task]["trials"] for table in tables.values() if task in table})
