@@ -172,8 +172,29 @@ def test_violent_shake_drops_what_the_lift_keeps() -> None:
     gentle = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05)
     assert gentle.stable, gentle
     # 8 cm in 0.25 s: a peak acceleration of about 5 g.
-    violent = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05, ChecksStageParams(shake_distance=0.08))
+    violent = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05,
+                    ChecksStageParams(shake_distance=0.08, store_shake=True))
     assert violent.fail_reason == "dropped_on_shake"
+
+
+def test_under_the_lift_criterion_the_shakes_run_only_where_asked_for(models) -> None:
+    """They cannot change ``stable`` under ``lift``: skipped, the lift's outcome is the same and costs fewer steps."""
+    block = model_row("grippy", "knife", block_parts(), density=3000.0, friction=(0.2, 0.01, 0.01))
+    heavy = model_row("heavy", "hammer", hammer_parts(), density=8000.0)
+    grasps = [(block, [0.0, 0.0, 0.0], 0.05), (models["hammer"], [-0.02, 0.0, 0.0], 0.035),
+              (heavy, [-0.14, 0.0, 0.0], 0.035)]
+    for model, position, width in grasps:
+        skipped = trial(model, position, ACROSS_Y, width)
+        shaken = trial(model, position, ACROSS_Y, width, ChecksStageParams(store_shake=True))
+        assert (skipped.stable, skipped.lift_stable) == (shaken.stable, shaken.lift_stable)
+        if shaken.lift_stable:
+            assert skipped.shake_stable is None and skipped.fail_reason == ""
+            assert skipped.sim_steps < shaken.sim_steps
+        else:
+            assert (skipped.shake_stable, skipped.fail_reason) == (False, shaken.fail_reason)
+            assert skipped.sim_steps == shaken.sim_steps
+    assert [trial(model, position, ACROSS_Y, width).lift_stable for model, position, width in grasps] == [
+        True, True, False]
 
 
 # -- trials that stop once their outcome is known -----------------------------------

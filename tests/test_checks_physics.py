@@ -79,7 +79,8 @@ def test_both_criteria_are_stored_and_the_stage_says_which_one_stable_means() ->
     """A block held on the lift but dropped by a violent shake: lift_stable, not shake_stable."""
     block = box_model([0.12, 0.04, 0.04], 0.3, 0.3)
     shaken = ChecksStageParams(shake_distance=0.2)  # a 13 g shake
-    lift = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05, shaken.model_copy(update={"criterion": "lift"}))
+    lift = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05,
+                 shaken.model_copy(update={"criterion": "lift", "store_shake": True}))
     shake = trial(block, [0.0, 0.0, 0.0], ACROSS_Y, 0.05, shaken.model_copy(update={"criterion": "shake"}))
     assert (lift.lift_stable, lift.shake_stable, lift.fail_reason) == (True, False, "dropped_on_shake")
     assert (shake.lift_stable, shake.shake_stable) == (True, False)
@@ -92,7 +93,7 @@ def test_a_light_thin_object_stays_between_the_pads_when_its_trial_runs_at_a_fin
     # trial runs at a third of the step, and it is held.
     bar = box_model([0.12, 0.0047, 0.0087], 0.004, 0.5)
     coarse = [trial(bar, [offset, 0.0, 0.0], ACROSS_Y, 0.03, SOFT) for offset in (-0.03, 0.0, 0.03)]
-    fine_params = SOFT.model_copy(update={"max_mass_ratio": 10.0})
+    fine_params = SOFT.model_copy(update={"max_mass_ratio": 10.0, "store_shake": True})
     fine = [trial(bar, [offset, 0.0, 0.0], ACROSS_Y, 0.03, fine_params) for offset in (-0.03, 0.0, 0.03)]
     assert not any(result.shake_stable for result in coarse)
     assert all(result.lift_stable and result.shake_stable for result in fine)

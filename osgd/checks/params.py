@@ -156,8 +156,15 @@ class ChecksStageParams(StageParams):
     criterion: Literal["lift", "shake"] = Field(
         "lift",
         description="what the checks table's 'stable' means: 'lift' (closed, lifted and held, the paper's "
-        "check) or 'shake' (held through the shakes too, as ACRONYM); both outcomes are stored "
-        "(docs/checks.md)",
+        "check) or 'shake' (held through the shakes too, as ACRONYM); both outcomes are stored where the "
+        "shakes run (store_shake, docs/checks.md)",
+    )
+    store_shake: bool = Field(
+        False, json_schema_extra={"omit_default": True},
+        description="under criterion 'lift', run the shakes as well and store their outcome in shake_stable; "
+        "false skips them, since they cannot change 'stable' under 'lift' (shake_stable is then null for the "
+        "grasps held on the lift, about three quarters of whose steps the shakes are); criterion 'shake' always "
+        "runs them",
     )
     max_slip_distance: float = Field(
         0.02, ge=0.0,
@@ -168,6 +175,11 @@ class ChecksStageParams(StageParams):
         0.35, ge=0.0, le=3.2,
         description="largest rotation of the object relative to the hand for a held grasp, rad (20 deg)",
     )
+
+    @property
+    def shakes(self) -> bool:
+        """Whether a trial held on the lift goes on to the shakes."""
+        return self.criterion == "shake" or self.store_shake
 
     def approach_for(self, source: str | None) -> Literal["hulls", "mesh"]:
         """The approach geometry of a model from ``source`` (models' ``source`` column): ``auto`` resolved."""

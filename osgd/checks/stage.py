@@ -51,7 +51,7 @@ class ChecksStage(Stage):
     name = "checks"
     table = "checks"
     # Bump whenever the outcome of a trial for the same inputs changes.
-    version = 2
+    version = 3
     inputs = ("models", "grasps")
     Params = ChecksStageParams
     description = "Simulated grasp trials in pybullet."

@@ -29,6 +29,9 @@ class AcceptanceCounts:
     trials, stable, lift, shake : Counter of (category, task) -> int
         All trials, and those held under the stage's criterion, under
         ``lift`` and under ``shake``.
+    unshaken : Counter of (category, task) -> int
+        Trials held on the lift whose shakes did not run (``shake_stable``
+        null).
     fail_reasons : Counter of str -> int
     user_trials, user_approach_collisions : int
         Trials on users' meshes (``source`` "user"), and those that failed on the approach.
@@ -38,6 +41,7 @@ class AcceptanceCounts:
     stable: Counter[tuple[str, str]] = field(default_factory=Counter)
     lift: Counter[tuple[str, str]] = field(default_factory=Counter)
     shake: Counter[tuple[str, str]] = field(default_factory=Counter)
+    unshaken: Counter[tuple[str, str]] = field(default_factory=Counter)
     fail_reasons: Counter[str] = field(default_factory=Counter)
     user_trials: int = 0
     user_approach_collisions: int = 0
@@ -46,14 +50,18 @@ class AcceptanceCounts:
              criterion: str = "stable") -> tuple[int, int]:
         """(held, trials) summed over the keys matching ``category`` and ``task`` (None: any).
 
-        ``criterion`` is ``"stable"`` (the stage's), ``"lift"`` or ``"shake"``.
+        ``criterion`` is ``"stable"`` (the stage's), ``"lift"`` or ``"shake"``;
+        the ``"shake"`` rate is unknown, (held, 0), where a matching trial
+        held on the lift skipped its shakes.
         """
         def matches(key: tuple[str, str]) -> bool:
             return (category is None or key[0] == category) and (task is None or key[1] == task)
 
         held: Counter[tuple[str, str]] = getattr(self, criterion)
-        return (sum(value for key, value in held.items() if matches(key)),
-                sum(value for key, value in self.trials.items() if matches(key)))
+        trials = sum(value for key, value in self.trials.items() if matches(key))
+        if criterion == "shake" and any(value for key, value in self.unshaken.items() if matches(key)):
+            trials = 0
+        return sum(value for key, value in held.items() if matches(key)), trials
 
 
 def _grasps_keys_by_item(store: ShardStore) -> dict[str, list[str]]:
@@ -118,7 +126,8 @@ def acceptance_counts(
             counts.trials[key] += 1
             counts.stable[key] += int(stable)
             counts.lift[key] += int(lift)
-            counts.shake[key] += int(shake)
+            counts.shake[key] += int(bool(shake))
+            counts.unshaken[key] += int(shake is None)
             if reason:
                 counts.fail_reasons[reason] += 1
             if model_id in users:
@@ -127,14 +136,18 @@ def acceptance_counts(
     return counts
 
 
+def _percent(held: int, trials: int, width: int) -> str:
+    """``held / trials`` as a percentage right-aligned in ``width`` characters; "-" without trials."""
+    return f"{100 * held / trials:>{width - 1}.1f}%" if trials else f"{'-':>{width}}"
+
+
 def _table(title: str, names: Sequence[str], counts: AcceptanceCounts, by: str) -> list[str]:
     lines = [title, f"  {'':<14}{'trials':>8}{'stable':>8}{'lift':>8}{'shake':>8}"]
     for name in names:
         stable, trials = counts.rate(**{by: name})
         if trials:
-            lift, shake = (counts.rate(**{by: name}, criterion=criterion)[0] for criterion in ("lift", "shake"))
-            lines.append(f"  {name:<14}{trials:>8}{stable:>8}{100 * lift / trials:>7.1f}%"
-                         f"{100 * shake / trials:>7.1f}%")
+            lift, shake = (counts.rate(**{by: name}, criterion=criterion) for criterion in ("lift", "shake"))
+            lines.append(f"  {name:<14}{trials:>8}{stable:>8}{_percent(*lift, 8)}{_percent(*shake, 8)}")
     return lines
 
 
@@ -151,9 +164,12 @@ def format_acceptance(counts: AcceptanceCounts, approach_geometry: str = "auto")
         return "checks: no grasps tried"
     categories = [*CATEGORIES, *sorted({key[0] for key in counts.trials} - set(CATEGORIES))]
     tasks = [*TASKS, *sorted({key[1] for key in counts.trials} - set(TASKS))]
-    lift, shake = (counts.rate(criterion=criterion)[0] for criterion in ("lift", "shake"))
+    lift = counts.rate(criterion="lift")[0]
+    shake, shaken = counts.rate(criterion="shake")
+    shake_text = (f"shake {100 * shake / shaken:.1f}%" if shaken
+                  else "shake not run (checks.store_shake)")
     lines = [f"checks: {stable} of {trials} grasps stable ({100 * stable / trials:.1f}%); "
-             f"lift {100 * lift / trials:.1f}%, shake {100 * shake / trials:.1f}%"]
+             f"lift {100 * lift / trials:.1f}%, {shake_text}"]
     lines += _table("per category", categories, counts, "category")
     lines += _table("per task", tasks, counts, "task")
     if counts.fail_reasons:

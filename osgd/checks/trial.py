@@ -40,7 +40,10 @@ GraspGen (REFERENCE section 5) in a world with no floor:
    centre). The same criterion judged at the end (and every few steps, to
    stop early) gives ``dropped_on_shake``; otherwise the grasp holds under
    the ``shake`` criterion (ACRONYM's) too. The stage's ``criterion`` says
-   which of the two ``stable`` means.
+   which of the two ``stable`` means. Under ``lift`` the shakes cannot
+   change ``stable``, and they run only where ``store_shake`` asks for
+   their outcome; otherwise a grasp held on the lift ends there, its
+   ``shake_stable`` unknown (None).
 
 World frame: the grasp centre is at the origin with the approach pointing
 down (world ``-z``), the usual top-down pick, so gravity pulls the object
@@ -100,8 +103,10 @@ class TrialResult:
         ``shake_stable``.
     lift_stable : bool
         Closed, lifted and held: the paper's check.
-    shake_stable : bool
-        Held through the shakes as well (implies ``lift_stable``).
+    shake_stable : bool or None
+        Held through the shakes as well (implies ``lift_stable``); None for
+        a grasp held on the lift whose trial skipped the shakes
+        (``ChecksStageParams.shakes``).
     fail_reason : str
         ``""`` or one of :data:`FAIL_REASONS`: the phase where the full
         trial (through the shakes) failed.
@@ -120,7 +125,7 @@ class TrialResult:
 
     stable: bool
     lift_stable: bool
-    shake_stable: bool
+    shake_stable: bool | None
     fail_reason: str
     slip_distance: float
     slip_rotation: float
@@ -201,10 +206,11 @@ class _Trial:
         distance, rotation = self.slip()
         return distance <= self.params.max_slip_distance and rotation <= self.params.max_slip_rotation
 
-    def result(self, fail_reason: str) -> TrialResult:
+    def result(self, fail_reason: str, shaken: bool = True) -> TrialResult:
+        """The outcome of a trial that ended in ``fail_reason`` ("" held); ``shaken``: whether its shakes ran."""
         distance, rotation = self.slip()
         lift_stable = fail_reason in ("", "dropped_on_shake")
-        shake_stable = not fail_reason
+        shake_stable = (not fail_reason) if shaken or not lift_stable else None
         return TrialResult(
             stable=lift_stable if self.params.criterion == "lift" else shake_stable,
             lift_stable=lift_stable,
@@ -489,7 +495,7 @@ def run_trial(
     -------
     TrialResult
         The ``lift`` outcome is decided after the hold; the shakes run only
-        for grasps that pass it.
+        for grasps that pass it, and only where ``params.shakes``.
     """
     params = trial_params(params, float(model["mass"]))
     opening = float(np.clip(width, 0.0, gripper.max_opening))
@@ -520,6 +526,8 @@ def run_trial(
     trial.reference = trial.object_in_hand()
     if not _lift(trial):
         return trial.result("slipped_on_lift")
+    if not params.shakes:
+        return trial.result("", shaken=False)
     if not _shake(trial, rng):
         return trial.result("dropped_on_shake")
     return trial.result("")

@@ -20,7 +20,8 @@ tried as annotated and made wrong in three ways, each under both criteria
   the surface).
 
 A good check passes the first set and fails the other three under both
-criteria (``shake`` implies ``lift``, so failing ``lift`` fails both).
+criteria (``shake`` implies ``lift``, so failing ``lift`` fails both); the
+trials run their shakes (``store_shake``) whatever the criterion.
 Prints, per category and per task, the share of the annotated grasps that
 hold and of each wrong set that fails, as Markdown tables, and writes every
 trial's outcome and the tables as JSON.
@@ -205,7 +206,7 @@ def table(title: str, by_group: dict[str, dict[str, dict[str, float]]]) -> str:
 def validate(arguments: argparse.Namespace) -> None:
     jobs = load_grasps(arguments.config, arguments.data_dir, arguments.workers)[::arguments.every]
     overrides = dict(override.split("=", 1) for override in arguments.set)
-    params = ChecksStageParams(pad_contact=arguments.pad_contact, **overrides).key_dict()
+    params = ChecksStageParams(**{"pad_contact": arguments.pad_contact, "store_shake": True, **overrides}).key_dict()
     for job in jobs:
         job["params"] = params
     start = time.perf_counter()

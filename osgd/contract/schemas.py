@@ -103,8 +103,9 @@ CHECKS = pa.schema(
                  metadata={"doc": "held under the stage's criterion (checks.criterion): lift_stable or shake_stable"}),
         pa.field("lift_stable", pa.bool_(), nullable=False,
                  metadata={"doc": "closed, lifted 10 cm and held: the paper's check"}),
-        pa.field("shake_stable", pa.bool_(), nullable=False,
-                 metadata={"doc": "held through three linear and three rotational shakes as well (ACRONYM)"}),
+        pa.field("shake_stable", pa.bool_(), nullable=True,
+                 metadata={"doc": "held through three linear and three rotational shakes as well (ACRONYM); "
+                                  "null for a grasp held on the lift whose shakes did not run (checks.store_shake)"}),
         pa.field("fail_reason", pa.string(), nullable=False,
                  metadata={"doc": "'' | approach_collision | empty_close | slipped_on_lift | dropped_on_shake"}),
         pa.field("slip_distance", pa.float64(), nullable=False,
