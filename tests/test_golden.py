@@ -502,9 +502,10 @@ def _relabel_grasp(rows: list[dict]) -> None:
 
 
 def _flip_outcome(row: dict) -> None:
-    """A trial that held both criteria now slips on the lift, and one that failed either now holds both."""
-    held = row["lift_stable"] and row["shake_stable"]
-    row["stable"] = row["lift_stable"] = row["shake_stable"] = not held
+    """A trial that held the lift now slips on it, and one that failed it now holds (its shakes not run)."""
+    held = row["lift_stable"]
+    row["stable"] = row["lift_stable"] = not held
+    row["shake_stable"] = False if held else None
     row["fail_reason"] = "slipped_on_lift" if held else ""
 
 
