@@ -7,6 +7,7 @@ import re
 
 import numpy as np
 import pytest
+import shapely
 import trimesh
 
 from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
@@ -123,6 +124,49 @@ def test_a_capped_pen_has_its_tip_under_the_cap():
     assert centres[found.face_parts == PART_INDEX["tip"]].min() > 0.075
     assert centres[found.face_parts == PART_INDEX["handle"]].max() < 0.085
     assert found.axis[0] > 0.99
+
+
+def _spoon_with_a_long_neck(length: float) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A flat handle narrowest at a third of its length that widens slowly to an elliptic bowl at 0.62 of it
+    (spoon_004 of the authors' models), and each face's true part."""
+    bowl_start = 0.62 * length
+    outline = shapely.Polygon([(0.0, -0.009), (length / 3, -0.0025), (bowl_start + 0.004, -0.0045),
+                               (bowl_start + 0.004, 0.0045), (length / 3, 0.0025), (0.0, 0.009)])
+    handle = trimesh.creation.extrude_polygon(outline, 0.004)
+    bowl = trimesh.creation.icosphere(subdivisions=3)
+    bowl.apply_scale([(length - bowl_start) / 2, 0.02, 0.008])
+    bowl.apply_translation([(length + bowl_start) / 2, 0.0, 0.002])
+    truth = np.concatenate([np.full(len(handle.faces), PART_INDEX["handle"]),
+                            np.full(len(bowl.faces), PART_INDEX["bowl"])])
+    return trimesh.util.concatenate([handle, bowl]), truth
+
+
+def test_a_spoon_whose_neck_narrows_early_has_its_bowl_where_the_width_rises_to_it():
+    """The narrowest point of the handle is at a third of the length; the bowl, at 0.62, is found there."""
+    spoon, truth = _spoon_with_a_long_neck(0.18)
+    mesh = _tilted(spoon, seed=3)
+    found = find_parts(mesh, "spoon")
+    assert found.found, found.note
+    along = spoon.triangles_center[:, 0]
+    assert along[found.face_parts == PART_INDEX["bowl"]].min() > 0.58 * 0.18
+    assert _agreement(mesh, truth, found.face_parts) >= 0.95
+
+
+def test_a_knife_with_a_long_blade_and_a_short_handle_has_its_blade_from_the_bolster():
+    """A blade of 0.7 of the length (0.2 mm thinner than the handle's 16 mm) from a round handle of 0.3."""
+    handle = _along_x(("cylinder", 0.0, 0.075, 0.008))
+    blade = trimesh.creation.box(extents=[0.175, 0.03, 0.002])
+    blade.apply_translation([0.075 + 0.175 / 2, 0.0, 0.0])
+    knife = trimesh.util.concatenate([handle, blade])
+    truth = np.concatenate([np.full(len(handle.faces), PART_INDEX["handle"]),
+                            np.full(len(blade.faces), PART_INDEX["blade"])])
+    mesh = _tilted(knife, seed=5)
+    found = find_parts(mesh, "knife")
+    assert found.found, found.note
+    along = knife.triangles_center[:, 0]
+    assert along[found.face_parts == PART_INDEX["blade"]].min() > 0.07
+    assert along[found.face_parts == PART_INDEX["handle"]].max() < 0.08
+    assert _agreement(mesh, truth, found.face_parts) >= 0.95
 
 
 def test_a_pen_with_no_tip_and_no_cap_is_left_unknown():

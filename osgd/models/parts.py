@@ -59,7 +59,16 @@ COLUMNS: Final[int] = 400
 #: Below this confidence the parts count as not found (no labels, a note).
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
-VERSION: Final[int] = 3
+VERSION: Final[int] = 4
+#: A face takes the part of the column this far behind it, against its normal along the axis: the end face of
+#: a step (a screwdriver handle's front, a spoon bowl's back) is the wider part's, whatever column the step's
+#: own column is given; a face along the axis keeps its column.
+INSIDE_COLUMNS: Final[float] = 1.5
+#: Where a part that widens out of a narrower one begins: going back from its widest column, the first
+#: column whose size has fallen this share of the way from the widest size to the narrow one's (1: just
+#: past the narrowest column; an elliptic spoon bowl has fallen three quarters of the way 3 % of its
+#: length from its end).
+RISE_SHARE: Final[float] = 0.75
 
 
 # -- the principal frame ---------------------------------------------------------------------------
@@ -235,6 +244,8 @@ class Profiles:
         Pixel size, m (the length over :data:`COLUMNS`).
     t : (F,) float
         Column of each face centroid (fractional, 0 at the low end of the axis).
+    facing : (F,) float
+        Each face's unit normal along the axis (+1: facing the high end).
     across : (F, 2) float
         (u, v) of each face centroid, m.
     low, high : (C, 2) float
@@ -250,6 +261,7 @@ class Profiles:
     frame: PrincipalFrame
     pixel: float
     t: np.ndarray
+    facing: np.ndarray
     across: np.ndarray
     low: np.ndarray
     high: np.ndarray
@@ -270,6 +282,7 @@ class Profiles:
             self,
             frame=self.frame.flipped(),
             t=self.columns - 1 - self.t,
+            facing=-self.facing,
             across=self.across * flip,
             low=np.column_stack([high[:, 0], low[:, 1]]),
             high=np.column_stack([low[:, 0], high[:, 1]]),
@@ -323,6 +336,7 @@ def profiles(mesh: trimesh.Trimesh, frame: PrincipalFrame | None = None) -> Prof
         frame=frame,
         pixel=pixel,
         t=(centroids[:, 0] - origin[0]) / pixel - kept.start,
+        facing=np.asarray(mesh.face_normals) @ frame.axes[0],
         across=centroids[:, 1:],
         low=low,
         high=high,
@@ -393,6 +407,12 @@ def _run_back(mask: np.ndarray, anchor: int | None = None, allowed_gap: int = 0)
             if gap > allowed_gap:
                 break
     return start
+
+
+def _rise_start(values: np.ndarray, narrow: int, widest: int) -> int:
+    """The column where the rise from ``narrow`` to ``widest`` begins (:data:`RISE_SHARE`), ``narrow <= widest``."""
+    level = values[widest] - RISE_SHARE * (values[widest] - values[narrow])
+    return max(narrow, _run_back(values > level, widest, allowed_gap=2))
 
 
 def _narrowest(values: np.ndarray, where: slice, tolerance: float) -> int:
@@ -467,14 +487,16 @@ def _screwdriver(profiles: Profiles) -> Segmentation:
 
 def _spoon(profiles: Profiles) -> Segmentation:
     """handle | bowl: the bowl is the end of larger section, or where that is unclear (a handle as wide as
-    the bowl), the end nearer the narrowest point (a short bowl, a long handle); it starts at that point."""
+    the bowl), the end nearer the narrowest point (a short bowl, a long handle); it starts where the width
+    rises from that point to the bowl's widest (a long neck that widens slowly stays handle)."""
     turned, contrast = _orient(profiles, lambda p, w: _largest(_section(p), w), 0.3)
     if contrast < 1.5:
         nearer_high_end = _narrowest(profiles.width, profiles.at(0.1, 0.9), 0.0) > profiles.columns / 2
         turned = profiles if nearer_high_end else profiles.reversed()
     neck = _narrowest(turned.width, turned.at(0.3, 0.95), 1.5 * turned.pixel)
-    ratio = _largest(turned.width, slice(neck, turned.columns)) / max(float(turned.width[neck]), 1e-9)
-    columns = _columns(turned.columns, ("handle", 0), ("bowl", neck))
+    widest = neck + int(np.argmax(turned.width[neck:]))
+    ratio = float(turned.width[widest]) / max(float(turned.width[neck]), 1e-9)
+    columns = _columns(turned.columns, ("handle", 0), ("bowl", _rise_start(turned.width, neck, widest)))
     return Segmentation(columns, _ramp(ratio, 1.4, 2.2), f"no bowl wider than its neck (ratio {ratio:.2f})", turned)
 
 
@@ -772,8 +794,10 @@ class AutomaticParts:
 
 
 def _face_parts(segmentation: Segmentation) -> np.ndarray:
+    """The part of each face: that of the column just inside the solid behind it (:data:`INSIDE_COLUMNS`)."""
     profiles = segmentation.profiles
-    column = np.clip(np.round(profiles.t).astype(int), 0, profiles.columns - 1)
+    inside = profiles.t - INSIDE_COLUMNS * profiles.facing
+    column = np.clip(np.round(inside).astype(int), 0, profiles.columns - 1)
     parts = segmentation.columns[column]
     if segmentation.bristles is not None:
         axis, sign, level = segmentation.bristles
