@@ -162,9 +162,8 @@ class ChecksStageParams(StageParams):
     store_shake: bool = Field(
         False, json_schema_extra={"omit_default": True},
         description="under criterion 'lift', run the shakes as well and store their outcome in shake_stable; "
-        "false skips them, since they cannot change 'stable' under 'lift' (shake_stable is then null for the "
-        "grasps held on the lift, about three quarters of whose steps the shakes are); criterion 'shake' always "
-        "runs them",
+        "false skips them, since they cannot change 'stable' under 'lift': shake_stable is then null for the "
+        "grasps held on the lift, and their trials are a fifth as long; criterion 'shake' always runs them",
     )
     max_slip_distance: float = Field(
         0.02, ge=0.0,
