@@ -115,6 +115,19 @@ def test_a_pen_tip_is_the_cone_not_a_narrow_plug_at_the_back(seed):
     assert (tip_end - mesh.triangles_center.mean(axis=0)) @ found.axis > 0
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_slender_pen_whose_cone_rises_in_pixel_steps_has_its_tip_at_the_cone(seed):
+    """A 6 mm pen whose cone is a fifth of its length (procedural pen_06 stretched): its profile rises two
+    pixels every eight columns or so, so few columns grow; the steps are small against the rise."""
+    pen = _along_x(("cylinder", 0.0, 0.13, 0.003), ("cone", 0.13, 0.165, 0.003))
+    mesh = _tilted(pen, seed)
+    found = find_parts(mesh, "pen")
+    assert found.found, found.note
+    along = pen.triangles_center[:, 0]
+    assert along[found.face_parts == PART_INDEX["tip"]].min() > 0.12
+    assert along[found.face_parts == PART_INDEX["handle"]].max() < 0.15
+
+
 def test_a_capped_pen_has_its_tip_under_the_cap():
     """pen_005 of the authors' models: neither end tapers; the writing tip lies under the wider cap."""
     pen = _along_x(("cylinder", 0.0, 0.085, 0.004), ("cylinder", 0.08, 0.14, 0.0055))

@@ -59,7 +59,7 @@ COLUMNS: Final[int] = 400
 #: Below this confidence the parts count as not found (no labels, a note).
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
-VERSION: Final[int] = 4
+VERSION: Final[int] = 5
 #: A face takes the part of the column this far behind it, against its normal along the axis: the end face of
 #: a step (a screwdriver handle's front, a spoon bowl's back) is the wider part's, whatever column the step's
 #: own column is given; a face along the axis keeps its column.
@@ -576,11 +576,14 @@ def _hammer(profiles: Profiles) -> Segmentation:
     return Segmentation(columns, confidence, f"no head wider than the handle (ratio {ratio:.2f})", profiles)
 
 
-#: A pen's end tapers when its section grows in at least this share of the columns from the end to where it
-#: reaches 90 % of the body's: a cone grows steadily; a narrow plug at the back or a blunt end does not. On the
-#: authors' seven pens the tips grow in 25-100 % of those columns, the backs in 0-20 %; where both ends count,
+#: A pen's end tapers when its section grows steadily from the end to where it reaches 90 % of the body's: in
+#: at least :data:`PEN_STEADY_GROWTH` of those columns, or in steps none larger than :data:`PEN_LARGEST_STEP` of
+#: the whole rise (a slender cone's profile rises a pixel step every few columns, so few columns grow). A narrow
+#: plug at the back or a blunt end does neither: it stays flat, then steps up at once. Where both ends taper,
 #: the longer stretch is the tip (docs/models.md).
 PEN_STEADY_GROWTH: Final[float] = 0.2
+#: The largest step of a steady taper, as a share of its rise (see :data:`PEN_STEADY_GROWTH`).
+PEN_LARGEST_STEP: Final[float] = 1 / 3
 
 
 def _pen_size(profiles: Profiles) -> np.ndarray:
@@ -595,8 +598,13 @@ def _taper_length(size: np.ndarray, body: float) -> int:
     quarter = max(len(size) // 4, 1)
     reached = np.flatnonzero(size[:quarter] >= 0.9 * body)
     stop = int(reached[0]) if len(reached) else quarter
-    growing = int(np.count_nonzero(np.diff(size[: stop + 1]) > 0))
-    return stop if growing >= PEN_STEADY_GROWTH * stop else 0
+    steps = np.diff(size[: stop + 1])
+    if not len(steps):
+        return 0
+    growing = np.count_nonzero(steps > 0) >= PEN_STEADY_GROWTH * stop
+    rise = float(size[stop] - size[0])
+    small_steps = rise > 0 and steps.max() <= PEN_LARGEST_STEP * rise
+    return stop if growing or small_steps else 0
 
 
 def _pen(profiles: Profiles) -> Segmentation:
