@@ -519,7 +519,8 @@ def _flip_every_outcome(rows: list[dict]) -> None:
 
 
 def _flip_every_shake(rows: list[dict]) -> None:
-    """Every trial that held the lift now has the other shake outcome; the lift criterion is unchanged."""
+    """Every trial that held the lift now has another shake outcome (one whose shakes did not run, None, has
+    True); the lift criterion is unchanged."""
     for row in rows:
         if row["lift_stable"]:
             row["shake_stable"] = not row["shake_stable"]

@@ -128,6 +128,19 @@ def test_a_slender_pen_whose_cone_rises_in_pixel_steps_has_its_tip_at_the_cone(s
     assert along[found.face_parts == PART_INDEX["handle"]].max() < 0.15
 
 
+def test_a_plug_with_a_short_shoulder_is_not_a_taper():
+    """A narrow plug at the back a sixth of the pen long that widens to the body over 1.5 mm in small steps:
+    the tip is still the cone at the front."""
+    outline = [(0.0, 0.0), (0.002, 0.0), (0.002, 0.025), (0.005, 0.0265), (0.005, 0.132), (0.0, 0.142)]
+    pen = trimesh.creation.revolve(np.array(outline), sections=32)
+    pen.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0.0, 1.0, 0.0]))
+    found = find_parts(_tilted(pen, 2), "pen")
+    assert found.found, found.note
+    along = pen.triangles_center[:, 0]
+    assert along[found.face_parts == PART_INDEX["tip"]].min() > 0.12
+    assert along[found.face_parts == PART_INDEX["handle"]].max() < 0.14
+
+
 def test_a_capped_pen_has_its_tip_under_the_cap():
     """pen_005 of the authors' models: neither end tapers; the writing tip lies under the wider cap."""
     pen = _along_x(("cylinder", 0.0, 0.085, 0.004), ("cylinder", 0.08, 0.14, 0.0055))

@@ -60,14 +60,16 @@ COLUMNS: Final[int] = 400
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
 VERSION: Final[int] = 5
-#: A face takes the part of the column this far behind it, against its normal along the axis: the end face of
-#: a step (a screwdriver handle's front, a spoon bowl's back) is the wider part's, whatever column the step's
-#: own column is given; a face along the axis keeps its column.
+#: A face takes the part of the column this many columns behind it times its normal's component along the
+#: axis (against the normal, into the solid): the end face of a step (a screwdriver handle's front, a spoon
+#: bowl's back) is the wider part's, whatever column the step's own column is given; a face along the axis
+#: keeps its column. It relies on outward normals, which validation gives closed meshes; a surface that is
+#: open and wound inside out gives its steps' end faces to the narrower part.
 INSIDE_COLUMNS: Final[float] = 1.5
 #: Where a part that widens out of a narrower one begins: going back from its widest column, the first
 #: column whose size has fallen this share of the way from the widest size to the narrow one's (1: just
-#: past the narrowest column; an elliptic spoon bowl has fallen three quarters of the way 3 % of its
-#: length from its end).
+#: past the narrowest column). Three quarters: an ellipse is a quarter as wide as at its widest 3 % of
+#: its half-length from its end, so on a narrow neck the boundary lies close to where an elliptic bowl ends.
 RISE_SHARE: Final[float] = 0.75
 
 
@@ -245,7 +247,7 @@ class Profiles:
     t : (F,) float
         Column of each face centroid (fractional, 0 at the low end of the axis).
     facing : (F,) float
-        Each face's unit normal along the axis (+1: facing the high end).
+        The component along the axis of each face's unit normal, in [-1, 1] (+1: facing the high end).
     across : (F, 2) float
         (u, v) of each face centroid, m.
     low, high : (C, 2) float
@@ -577,17 +579,27 @@ def _hammer(profiles: Profiles) -> Segmentation:
 
 
 #: A pen's end tapers when its section grows steadily from the end to where it reaches 90 % of the body's: in
-#: at least :data:`PEN_STEADY_GROWTH` of those columns, or in steps none larger than :data:`PEN_LARGEST_STEP` of
-#: the whole rise (a slender cone's profile rises a pixel step every few columns, so few columns grow). A narrow
-#: plug at the back or a blunt end does neither: it stays flat, then steps up at once. Where both ends taper,
-#: the longer stretch is the tip (docs/models.md).
+#: at least :data:`PEN_STEADY_GROWTH` of those columns, or, where a slender cone's profile rises a pixel step
+#: every few columns so that few columns grow, in steps none larger than :data:`PEN_LARGEST_STEP` of the whole
+#: rise with no flat stretch longer than :data:`PEN_LONGEST_FLAT` of the columns. A narrow plug at the back or
+#: a blunt end does neither: it stays flat, then steps up, at once or over a short shoulder. Where both ends
+#: taper, the longer stretch is the tip (docs/models.md).
 PEN_STEADY_GROWTH: Final[float] = 0.2
 #: The largest step of a steady taper, as a share of its rise (see :data:`PEN_STEADY_GROWTH`).
 PEN_LARGEST_STEP: Final[float] = 1 / 3
+#: The longest stretch without growth of a steady taper, as a share of its columns (see :data:`PEN_STEADY_GROWTH`).
+PEN_LONGEST_FLAT: Final[float] = 0.5
 
 
 def _pen_size(profiles: Profiles) -> np.ndarray:
     return np.minimum(profiles.width, profiles.thickness)
+
+
+def _longest_flat(steps: np.ndarray) -> int:
+    """The longest run of steps without growth."""
+    flat = np.concatenate([[0], (steps <= 0).astype(np.int8), [0]])
+    edges = np.flatnonzero(np.diff(flat))
+    return int((edges[1::2] - edges[::2]).max()) if len(edges) else 0
 
 
 def _taper_length(size: np.ndarray, body: float) -> int:
@@ -604,7 +616,8 @@ def _taper_length(size: np.ndarray, body: float) -> int:
     growing = np.count_nonzero(steps > 0) >= PEN_STEADY_GROWTH * stop
     rise = float(size[stop] - size[0])
     small_steps = rise > 0 and steps.max() <= PEN_LARGEST_STEP * rise
-    return stop if growing or small_steps else 0
+    return stop if growing or (small_steps and _longest_flat(steps) <= PEN_LONGEST_FLAT * stop) else 0
+
 
 
 def _pen(profiles: Profiles) -> Segmentation:
