@@ -597,9 +597,8 @@ def _pen_size(profiles: Profiles) -> np.ndarray:
 
 def _longest_flat(steps: np.ndarray) -> int:
     """The longest run of steps without growth."""
-    flat = np.concatenate([[0], (steps <= 0).astype(np.int8), [0]])
-    edges = np.flatnonzero(np.diff(flat))
-    return int((edges[1::2] - edges[::2]).max()) if len(edges) else 0
+    growing = np.flatnonzero(np.concatenate([[True], steps > 0, [True]]))
+    return int(np.diff(growing).max()) - 1
 
 
 def _taper_length(size: np.ndarray, body: float) -> int:
@@ -615,9 +614,9 @@ def _taper_length(size: np.ndarray, body: float) -> int:
         return 0
     growing = np.count_nonzero(steps > 0) >= PEN_STEADY_GROWTH * stop
     rise = float(size[stop] - size[0])
-    small_steps = rise > 0 and steps.max() <= PEN_LARGEST_STEP * rise
-    return stop if growing or (small_steps and _longest_flat(steps) <= PEN_LONGEST_FLAT * stop) else 0
-
+    small_steps = (rise > 0 and steps.max() <= PEN_LARGEST_STEP * rise
+                   and _longest_flat(steps) <= PEN_LONGEST_FLAT * stop)
+    return stop if growing or small_steps else 0
 
 
 def _pen(profiles: Profiles) -> Segmentation:
