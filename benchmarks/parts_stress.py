@@ -124,16 +124,24 @@ def noisy(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
 
 
 def holed(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
-    """:data:`HOLE_COUNT` small patches of faces removed (the models stage fills what it can)."""
-    centres = mesh.triangles_center
-    area = mesh.area_faces
-    seeds = rng.choice(len(centres), size=HOLE_COUNT, p=area / area.sum())
+    """:data:`HOLE_COUNT` small patches of faces removed (the models stage fills what it can).
+
+    Faces longer than a patch is wide are subdivided first, so that a patch is a small hole also where one face
+    spans the tool (a procedural handle's side), not a strip along it.
+    """
     radius = HOLE_RADIUS * float(mesh.extents.max())
+    edge = max(2 * radius, float(np.sqrt(2 * mesh.area / MAX_FACES)) * 1.5)
+    vertices, faces, index = trimesh.remesh.subdivide_to_size(
+        mesh.vertices, mesh.faces, max_edge=edge, max_iter=20, return_index=True
+    )
+    fine = trimesh.Trimesh(vertices, faces, process=False)
+    centres, area = fine.triangles_center, fine.area_faces
+    seeds = rng.choice(len(centres), size=HOLE_COUNT, p=area / area.sum())
     gone = np.zeros(len(centres), dtype=bool)
     for seed in seeds:
         gone |= np.linalg.norm(centres - centres[seed], axis=1) < radius
-    origin = np.flatnonzero(~gone)
-    return Stressed(trimesh.Trimesh(mesh.vertices, mesh.faces[origin], process=False), origin, np.eye(4))
+    kept = np.flatnonzero(~gone)
+    return Stressed(trimesh.Trimesh(vertices, faces[kept], process=False), np.asarray(index)[kept], np.eye(4))
 
 
 def scan(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:

@@ -178,6 +178,23 @@ def test_a_spoon_whose_neck_narrows_early_has_its_bowl_where_the_width_rises_to_
     assert _agreement(mesh, truth, found.face_parts) >= 0.95
 
 
+def test_a_fork_whose_neck_is_barely_narrower_than_its_head_has_its_tines_from_the_plate():
+    """A neck that widens from 9.2 to 10.7 mm over 25 mm onto the plate the tines stand on (procedural fork_04
+    of seed 1): 94 % of the head's width is reached 7 mm before the plate; the tines begin where the rise
+    levels off."""
+    plate_start, end = 0.145, 0.19
+    outline = shapely.Polygon([(0.0, -0.0068), (0.12, -0.0046), (plate_start, -0.00535), (end, -0.00535),
+                               (end, 0.00535), (plate_start, 0.00535), (0.12, 0.0046), (0.0, 0.0068)])
+    flat = trimesh.creation.extrude_polygon(outline.difference(shapely.box(0.155, -0.0012, end + 0.001, 0.0012)),
+                                            0.004)
+    fork = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(flat.vertices, flat.faces, max_edge=0.001))
+    found = find_parts(_tilted(fork, seed=4), "fork")
+    assert found.found, found.note
+    along = fork.triangles_center[:, 0]
+    assert plate_start - 0.002 < along[found.face_parts == PART_INDEX["tines"]].min() < plate_start + 0.002
+    assert along[found.face_parts == PART_INDEX["neck"]].max() < plate_start
+
+
 def test_a_knife_with_a_long_blade_and_a_short_handle_has_its_blade_from_the_bolster():
     """A blade of 0.7 of the length (0.2 mm thinner than the handle's 16 mm) from a round handle of 0.3."""
     handle = _along_x(("cylinder", 0.0, 0.075, 0.008))

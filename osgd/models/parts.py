@@ -59,7 +59,7 @@ COLUMNS: Final[int] = 400
 #: Below this confidence the parts count as not found (no labels, a note).
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
-VERSION: Final[int] = 5
+VERSION: Final[int] = 6
 #: A face takes the part of the column this many columns behind it times its normal's component along the
 #: axis (against the normal, into the solid): the end face of a step (a screwdriver handle's front, a spoon
 #: bowl's back) is the wider part's, whatever column the step's own column is given; a face along the axis
@@ -423,6 +423,17 @@ def _narrowest(values: np.ndarray, where: slice, tolerance: float) -> int:
     return where.start + int(np.flatnonzero(part <= part.min() + tolerance)[-1])
 
 
+def _knee(values: np.ndarray, where: slice) -> int:
+    """Where the rise from the least value of ``where`` to its last column levels off: the column farthest
+    above the straight line between the two (a straight ramp onto a plateau: where the plateau begins); the
+    least value's column where nothing rises after it."""
+    part = values[where]
+    low = int(np.argmin(part))
+    rise = part[low:]
+    chord = np.linspace(rise[0], rise[-1], len(rise))
+    return where.start + low + int(np.argmax(rise - chord))
+
+
 def _columns(count: int, *segments: tuple[str, int]) -> np.ndarray:
     """Part per column: each (part, first column) segment runs to the next one."""
     parts = np.full(count, PART_INDEX[segments[0][0]], dtype=np.int8)
@@ -514,6 +525,7 @@ def _fork(profiles: Profiles) -> Segmentation:
     head = _median(profiles.width, slice(first_gap, profiles.columns))
     anchor = min(first_gap, profiles.columns - 1)
     tines = min(_run_back(profiles.width >= 0.94 * head, anchor=anchor, allowed_gap=2), first_gap)
+    tines = max(tines, _knee(profiles.width, slice(max(0, first_gap - int(0.35 * profiles.columns)), anchor + 1)))
     window = slice(max(0, tines - int(0.35 * profiles.columns)), max(tines - 1, 1))
     neck = _narrowest(profiles.width, window, 1.5 * profiles.pixel)
     columns = _columns(profiles.columns, ("handle", 0), ("neck", neck), ("tines", tines))
@@ -646,16 +658,17 @@ def _pen(profiles: Profiles) -> Segmentation:
 def _bristles(profiles: Profiles, head: int, neck: slice) -> tuple[tuple[int, float, float], float]:
     """Where the bristles stand: (axis, sign, level) of :class:`Segmentation`, and how far they stand out, m.
 
-    Of the four directions across the axis (+-u, +-v), the one in which the
-    head stands out farthest beyond the neck; the level is 1 mm beyond the neck.
+    Of the four directions across the axis (+-u, +-v), the one in which the head stands out farthest beyond the
+    neck's surface (its median over the neck's columns: the neck's ends rise into the handle and the head, and
+    a scan's noise lifts its highest point); the level is 1 mm beyond the neck's highest point.
     """
     best = ((1, 1.0, np.inf), 0.0)
     for axis in (0, 1):
         for sign, bound in ((1.0, profiles.high), (-1.0, profiles.low)):
-            neck_reach = float((sign * bound[neck, axis]).max())
-            head_reach = float((sign * bound[head:, axis]).max())
-            if head_reach - neck_reach > best[1]:
-                best = ((axis, sign, neck_reach + 0.001), head_reach - neck_reach)
+            neck_reach = sign * bound[neck, axis]
+            stands_out = float((sign * bound[head:, axis]).max() - np.median(neck_reach))
+            if stands_out > best[1]:
+                best = ((axis, sign, float(neck_reach.max()) + 0.001), stands_out)
     return best
 
 
