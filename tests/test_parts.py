@@ -152,6 +152,17 @@ def test_a_capped_pen_has_its_tip_under_the_cap():
     assert found.axis[0] > 0.99
 
 
+def test_a_capped_pen_whose_cap_ends_in_a_long_rounded_rim_has_its_tip_under_the_cap():
+    """The cap's end narrows over its last 5 mm (3.6 % of the length), narrower than the back there: the cap
+    still runs back from its widest column."""
+    pen = _along_x(("cylinder", 0.0, 0.085, 0.004), ("cylinder", 0.08, 0.135, 0.0055), ("cone", 0.135, 0.14, 0.0055))
+    found = find_parts(_tilted(pen, 1), "pen")
+    assert found.found, found.note
+    centres = pen.triangles_center[:, 0]
+    assert centres[found.face_parts == PART_INDEX["tip"]].min() > 0.075
+    assert centres[found.face_parts == PART_INDEX["handle"]].max() < 0.085
+
+
 def _spoon_with_a_long_neck(length: float) -> tuple[trimesh.Trimesh, np.ndarray]:
     """A flat handle narrowest at a third of its length that widens slowly to an elliptic bowl at 0.62 of it
     (spoon_004 of the authors' models), and each face's true part."""

@@ -472,10 +472,15 @@ def _thinnest(values: np.ndarray, where: slice) -> float:
     return float(np.percentile(part, 25)) if len(part) else 0.0
 
 
+#: The share of the length at each end whose median thickness tells a knife's blade end from its handle end:
+#: either part shows when it is half of it long (a short blade, a short handle behind a long blade).
+KNIFE_END: Final[float] = 0.15
+
+
 def _knife(profiles: Profiles) -> Segmentation:
     """handle | blade: the blade is the thinner end (even a short one); it ends where the thickness rises."""
-    profiles, contrast = _orient(profiles, lambda p, w: 1.0 / max(_thinnest(p.thickness, w), 1e-9), 0.3)
-    handle = _median(profiles.thickness, profiles.at(0.0, 0.3))
+    profiles, contrast = _orient(profiles, lambda p, w: 1.0 / max(_median(p.thickness, w), 1e-9), KNIFE_END)
+    handle = _median(profiles.thickness, profiles.at(0.0, KNIFE_END))
     blade = _thinnest(profiles.thickness, profiles.at(0.7, 1.0))
     start = _run_back(profiles.thickness < np.sqrt(handle * blade), allowed_gap=2)
     columns = _columns(profiles.columns, ("handle", 0), ("blade", start))
@@ -616,16 +621,18 @@ def _longest_flat(steps: np.ndarray) -> int:
 def _taper_length(size: np.ndarray, body: float) -> int:
     """Columns from column 0 to where ``size`` reaches 90 % of ``body``, if it grows steadily there; else 0.
 
-    Only the first quarter of the columns is searched (a tip is at most a quarter of a pen).
+    Only the first quarter of the columns is searched (a tip is at most a quarter of a pen). The growth is read
+    from column 1 on: the end column holds only the part of the end that reaches into it (a sliver of an apex,
+    lifted or cut by a scan's noise), not a step of the taper.
     """
     quarter = max(len(size) // 4, 1)
     reached = np.flatnonzero(size[:quarter] >= 0.9 * body)
     stop = int(reached[0]) if len(reached) else quarter
-    steps = np.diff(size[: stop + 1])
+    steps = np.diff(size[1 : stop + 1])
     if not len(steps):
         return 0
     growing = np.count_nonzero(steps > 0) >= PEN_STEADY_GROWTH * stop
-    rise = float(size[stop] - size[0])
+    rise = float(size[stop] - size[1])
     small_steps = (rise > 0 and steps.max() <= PEN_LARGEST_STEP * rise
                    and _longest_flat(steps) <= PEN_LONGEST_FLAT * stop)
     return stop if growing or small_steps else 0
@@ -642,14 +649,20 @@ def _pen(profiles: Profiles) -> Segmentation:
     low_end, high_end = _taper_length(size, body), _taper_length(size[::-1], body)
     if max(low_end, high_end) >= 0.03 * profiles.columns:
         profiles = profiles if high_end >= low_end else profiles.reversed()
-        tip = _run_back(_pen_size(profiles) < 0.9 * body)
+        size = _pen_size(profiles)
+        # From the apex back, where the cone's rise levels off into the body (its knee), or sooner where the
+        # section already falls below 90 % of the body's.
+        cone_base = profiles.columns - 1 - _knee(size[::-1], slice(0, max(profiles.columns // 4, 1)))
+        tip = min(_run_back(size < 0.9 * body), cone_base)
         confidence = _ramp((max(low_end, high_end) + 1) / (min(low_end, high_end) + 1), 1.2, 1.8)
         reason = f"both ends taper alike ({low_end} and {high_end} columns)"
         return Segmentation(_columns(profiles.columns, ("handle", 0), ("tip", tip)), confidence, reason, profiles)
     profiles, contrast = _orient(profiles, lambda p, w: _median(_pen_size(p), w), 0.08)
     size = _pen_size(profiles)
-    # The cap's rounded rim may be narrower than the back end for a few columns.
-    cap = _run_back(size >= 1.1 * _median(size, profiles.at(0.0, 0.08)), allowed_gap=round(0.02 * profiles.columns))
+    # The cap runs back from its widest column at the end: its rounded rim may be narrower than the back end.
+    end = profiles.at(0.92, 1.0)
+    cap = _run_back(size >= 1.1 * _median(size, profiles.at(0.0, 0.08)), anchor=end.start + int(np.argmax(size[end])),
+                    allowed_gap=round(0.02 * profiles.columns))
     confidence = _ramp(contrast, 1.15, 1.4) if cap < profiles.columns else 0.0
     reason = f"neither end tapers to a tip nor has a cap wider than the other end (ratio {contrast:.2f})"
     return Segmentation(_columns(profiles.columns, ("handle", 0), ("tip", cap)), confidence, reason, profiles)
