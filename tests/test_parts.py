@@ -190,9 +190,8 @@ def test_a_spoon_whose_neck_narrows_early_has_its_bowl_where_the_width_rises_to_
 
 
 def test_a_fork_whose_neck_is_barely_narrower_than_its_head_has_its_tines_from_the_plate():
-    """A neck that widens from 9.2 to 10.7 mm over 25 mm onto the plate the tines stand on (procedural fork_04
-    of seed 1): 94 % of the head's width is reached 7 mm before the plate; the tines begin where the rise
-    levels off."""
+    """A neck that widens from 9.2 to 10.7 mm over 25 mm onto the plate the tines stand on: 94 % of the head's
+    width is reached 7 mm before the plate; the tines begin where the rise levels off."""
     plate_start, end = 0.145, 0.19
     outline = shapely.Polygon([(0.0, -0.0068), (0.12, -0.0046), (plate_start, -0.00535), (end, -0.00535),
                                (end, 0.00535), (plate_start, 0.00535), (0.12, 0.0046), (0.0, 0.0068)])

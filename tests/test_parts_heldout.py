@@ -104,7 +104,6 @@ def test_holes_are_small_patches_also_on_a_mesh_of_long_faces():
     radius = parts_stress.HOLE_RADIUS * float(tool.mesh.extents.max())
     removed = 1 - change.mesh.area / tool.mesh.area
     assert 0 < removed <= parts_stress.HOLE_COUNT * np.pi * (2 * radius) ** 2 / tool.mesh.area
-    assert change.origin.max() < len(tool.mesh.faces)
 
 
 @pytest.mark.slow
@@ -124,7 +123,7 @@ def test_a_scanned_toothbrush_with_short_bristles_keeps_its_parts(osgd_models_di
     # A cone that rises onto a collar wider than the body: the tip begins at the cone's base.
     ("pen", 2, 2, "pose"),
 ])
-def test_cases_of_the_third_draw_that_were_missed_get_their_parts(category, index, seed, variant):
-    """Cases of the third draw (``bench_parts.py --seed 2``) that the rules missed before they were changed."""
+def test_procedural_tools_of_seed_2_in_hard_shapes_get_their_parts(category, index, seed, variant):
+    """Procedural tools of pipeline seed 2 (``bench_parts.py --seed 2``) in the shapes the comments name."""
     record = bench_parts.procedural_stress((category, index, seed, (variant,)))[0]
     assert record["found"] and record["score"] >= 0.95, record

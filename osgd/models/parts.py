@@ -426,7 +426,7 @@ def _narrowest(values: np.ndarray, where: slice, tolerance: float) -> int:
 def _knee(values: np.ndarray, where: slice) -> int:
     """Where the rise from the least value of ``where`` to its last column levels off: the column farthest
     above the straight line between the two (a straight ramp onto a plateau: where the plateau begins); the
-    least value's column where nothing rises after it."""
+    least value's column where nothing rises after it or the rise curves upward (no column above the line)."""
     part = values[where]
     low = int(np.argmin(part))
     rise = part[low:]
@@ -473,7 +473,8 @@ def _thinnest(values: np.ndarray, where: slice) -> float:
 
 
 #: The share of the length at each end whose median thickness tells a knife's blade end from its handle end:
-#: either part shows when it is half of it long (a short blade, a short handle behind a long blade).
+#: either part shows when it fills half of it, 7.5 % of the length (a short blade, a short handle behind a long
+#: blade).
 KNIFE_END: Final[float] = 0.15
 
 
@@ -650,8 +651,8 @@ def _pen(profiles: Profiles) -> Segmentation:
     if max(low_end, high_end) >= 0.03 * profiles.columns:
         profiles = profiles if high_end >= low_end else profiles.reversed()
         size = _pen_size(profiles)
-        # From the apex back, where the cone's rise levels off into the body (its knee), or sooner where the
-        # section already falls below 90 % of the body's.
+        # The tip begins where the cone's rise from the apex levels off into the body (its knee) or where the
+        # section falls below 90 % of the body's, whichever lies farther from the apex.
         cone_base = profiles.columns - 1 - _knee(size[::-1], slice(0, max(profiles.columns // 4, 1)))
         tip = min(_run_back(size < 0.9 * body), cone_base)
         confidence = _ramp((max(low_end, high_end) + 1) / (min(low_end, high_end) + 1), 1.2, 1.8)
@@ -673,15 +674,17 @@ def _bristles(profiles: Profiles, head: int, neck: slice) -> tuple[tuple[int, fl
 
     Of the four directions across the axis (+-u, +-v), the one in which the head stands out farthest beyond the
     neck's surface (its median over the neck's columns: the neck's ends rise into the handle and the head, and
-    a scan's noise lifts its highest point); the level is 1 mm beyond the neck's highest point.
+    a scan's noise lifts its highest point), of those in which the head reaches past the level: 1 mm beyond the
+    neck's highest point.
     """
     best = ((1, 1.0, np.inf), 0.0)
     for axis in (0, 1):
         for sign, bound in ((1.0, profiles.high), (-1.0, profiles.low)):
             neck_reach = sign * bound[neck, axis]
-            stands_out = float((sign * bound[head:, axis]).max() - np.median(neck_reach))
-            if stands_out > best[1]:
-                best = ((axis, sign, float(neck_reach.max()) + 0.001), stands_out)
+            head_reach, level = float((sign * bound[head:, axis]).max()), float(neck_reach.max()) + 0.001
+            stands_out = head_reach - float(np.median(neck_reach))
+            if head_reach > level and stands_out > best[1]:
+                best = ((axis, sign, level), stands_out)
     return best
 
 
