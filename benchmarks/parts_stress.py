@@ -87,13 +87,20 @@ def scaled(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
     return _affine(mesh, np.diag([*rng.uniform(1 - SCALE_SPREAD, 1 + SCALE_SPREAD, 3), 1.0]))
 
 
-def remeshed(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
-    """Subdivided to edges of at most :data:`REMESH_EDGE` (coarser where that would exceed :data:`MAX_FACES`)."""
-    edge = max(REMESH_EDGE, float(np.sqrt(2 * mesh.area / MAX_FACES)) * 1.5)
+def _subdivided(mesh: trimesh.Trimesh, edge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, faces and each face's original face after subdividing to edges of at most ``edge`` (coarser
+    where that would exceed :data:`MAX_FACES`)."""
+    edge = max(edge, float(np.sqrt(2 * mesh.area / MAX_FACES)) * 1.5)
     vertices, faces, index = trimesh.remesh.subdivide_to_size(
         mesh.vertices, mesh.faces, max_edge=edge, max_iter=20, return_index=True
     )
-    return Stressed(trimesh.Trimesh(vertices, faces, process=False), np.asarray(index), np.eye(4))
+    return vertices, faces, np.asarray(index)
+
+
+def remeshed(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
+    """Subdivided to edges of at most :data:`REMESH_EDGE` (coarser where that would exceed :data:`MAX_FACES`)."""
+    vertices, faces, index = _subdivided(mesh, REMESH_EDGE)
+    return Stressed(trimesh.Trimesh(vertices, faces, process=False), index, np.eye(4))
 
 
 def decimated(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
@@ -130,10 +137,7 @@ def holed(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
     spans the tool (a procedural handle's side), not a strip along it.
     """
     radius = HOLE_RADIUS * float(mesh.extents.max())
-    edge = max(2 * radius, float(np.sqrt(2 * mesh.area / MAX_FACES)) * 1.5)
-    vertices, faces, index = trimesh.remesh.subdivide_to_size(
-        mesh.vertices, mesh.faces, max_edge=edge, max_iter=20, return_index=True
-    )
+    vertices, faces, index = _subdivided(mesh, 2 * radius)
     fine = trimesh.Trimesh(vertices, faces, process=False)
     centres, area = fine.triangles_center, fine.area_faces
     seeds = rng.choice(len(centres), size=HOLE_COUNT, p=area / area.sum())
@@ -141,7 +145,7 @@ def holed(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:
     for seed in seeds:
         gone |= np.linalg.norm(centres - centres[seed], axis=1) < radius
     kept = np.flatnonzero(~gone)
-    return Stressed(trimesh.Trimesh(vertices, faces[kept], process=False), np.asarray(index)[kept], np.eye(4))
+    return Stressed(trimesh.Trimesh(vertices, faces[kept], process=False), index[kept], np.eye(4))
 
 
 def scan(mesh: trimesh.Trimesh, rng: np.random.Generator) -> Stressed:

@@ -531,8 +531,9 @@ def _fork(profiles: Profiles) -> Segmentation:
     head = _median(profiles.width, slice(first_gap, profiles.columns))
     anchor = min(first_gap, profiles.columns - 1)
     tines = min(_run_back(profiles.width >= 0.94 * head, anchor=anchor, allowed_gap=2), first_gap)
-    tines = max(tines, _knee(profiles.width, slice(max(0, first_gap - int(0.35 * profiles.columns)), anchor + 1)))
-    window = slice(max(0, tines - int(0.35 * profiles.columns)), max(tines - 1, 1))
+    neck_reach = int(0.35 * profiles.columns)  # how far before the tines the neck is looked for
+    tines = max(tines, _knee(profiles.width, slice(max(0, first_gap - neck_reach), anchor + 1)))
+    window = slice(max(0, tines - neck_reach), max(tines - 1, 1))
     neck = _narrowest(profiles.width, window, 1.5 * profiles.pixel)
     columns = _columns(profiles.columns, ("handle", 0), ("neck", neck), ("tines", tines))
     share = _gaps(profiles, profiles.at(0.85, 1.0))
@@ -609,6 +610,15 @@ PEN_LARGEST_STEP: Final[float] = 1 / 3
 PEN_LONGEST_FLAT: Final[float] = 0.5
 
 
+#: The share of a pen's length at each end whose median size tells a cap from the back end.
+PEN_END: Final[float] = 0.08
+
+
+def _tip_columns(count: int) -> int:
+    """The columns a pen's tip may span: a quarter of them."""
+    return max(count // 4, 1)
+
+
 def _pen_size(profiles: Profiles) -> np.ndarray:
     return np.minimum(profiles.width, profiles.thickness)
 
@@ -626,7 +636,7 @@ def _taper_length(size: np.ndarray, body: float) -> int:
     from column 1 on: the end column holds only the part of the end that reaches into it (a sliver of an apex,
     lifted or cut by a scan's noise), not a step of the taper.
     """
-    quarter = max(len(size) // 4, 1)
+    quarter = _tip_columns(len(size))
     reached = np.flatnonzero(size[:quarter] >= 0.9 * body)
     stop = int(reached[0]) if len(reached) else quarter
     steps = np.diff(size[1 : stop + 1])
@@ -653,16 +663,17 @@ def _pen(profiles: Profiles) -> Segmentation:
         size = _pen_size(profiles)
         # The tip begins where the cone's rise from the apex levels off into the body (its knee) or where the
         # section falls below 90 % of the body's, whichever lies farther from the apex.
-        cone_base = profiles.columns - 1 - _knee(size[::-1], slice(0, max(profiles.columns // 4, 1)))
+        cone_base = profiles.columns - 1 - _knee(size[::-1], slice(0, _tip_columns(profiles.columns)))
         tip = min(_run_back(size < 0.9 * body), cone_base)
         confidence = _ramp((max(low_end, high_end) + 1) / (min(low_end, high_end) + 1), 1.2, 1.8)
         reason = f"both ends taper alike ({low_end} and {high_end} columns)"
         return Segmentation(_columns(profiles.columns, ("handle", 0), ("tip", tip)), confidence, reason, profiles)
-    profiles, contrast = _orient(profiles, lambda p, w: _median(_pen_size(p), w), 0.08)
+    profiles, contrast = _orient(profiles, lambda p, w: _median(_pen_size(p), w), PEN_END)
     size = _pen_size(profiles)
     # The cap runs back from its widest column at the end: its rounded rim may be narrower than the back end.
-    end = profiles.at(0.92, 1.0)
-    cap = _run_back(size >= 1.1 * _median(size, profiles.at(0.0, 0.08)), anchor=end.start + int(np.argmax(size[end])),
+    end = profiles.at(1.0 - PEN_END, 1.0)
+    widest = end.start + int(np.argmax(size[end]))
+    cap = _run_back(size >= 1.1 * _median(size, profiles.at(0.0, PEN_END)), anchor=widest,
                     allowed_gap=round(0.02 * profiles.columns))
     confidence = _ramp(contrast, 1.15, 1.4) if cap < profiles.columns else 0.0
     reason = f"neither end tapers to a tip nor has a cap wider than the other end (ratio {contrast:.2f})"
