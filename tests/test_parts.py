@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import trimesh
 from osgd.contract.taxonomy import CATEGORIES, PART_INDEX, PARTS, UNKNOWN_PART
 from osgd.grasps.labels import DEFAULT_RULES
 from osgd.models import procedural
-from osgd.models.parts import find_parts, parts_method, principal_frame, true_length
+from osgd.models.parts import find_parts, parts_method, principal_frame, profiles, true_length
 from osgd.models.stage import ModelsStage, item_rng
 from osgd.stage import run_stage
 from osgd.store import ShardStore
@@ -161,6 +162,49 @@ def test_a_capped_pen_whose_cap_ends_in_a_long_rounded_rim_has_its_tip_under_the
     centres = pen.triangles_center[:, 0]
     assert centres[found.face_parts == PART_INDEX["tip"]].min() > 0.075
     assert centres[found.face_parts == PART_INDEX["handle"]].max() < 0.085
+
+
+def _scanned(mesh: trimesh.Trimesh, seed: int) -> trimesh.Trimesh:
+    """Remeshed to edges of at most 2 mm, every vertex moved by 0.2 mm noise, tilted."""
+    vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=0.002, max_iter=20)
+    vertices = vertices + np.random.default_rng(seed).normal(0.0, 0.0002, vertices.shape)
+    return _tilted(trimesh.Trimesh(vertices, faces, process=False), seed)
+
+
+def test_the_least_width_of_each_section_does_not_depend_on_the_turn_about_the_axis():
+    """A 120 x 12 x 8 mm bar turned 30 degrees about its axis: every section's least width is 8 mm (to the
+    nearest pixel), though its twelve faces span the whole length and the frame's width and thickness both read
+    more."""
+    bar = trimesh.creation.box([0.12, 0.012, 0.008])
+    bar.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30.0), [1.0, 0.0, 0.0]))
+    frame = principal_frame(bar)
+    turned = replace(frame, axes=np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+    seen = profiles(bar, turned, least_width=True)
+    inner = slice(2, seen.columns - 2)
+    assert np.ptp(seen.least_width[inner]) == 0  # in whole pixels: a constant section reads constant
+    assert abs(seen.least_width[inner][0] - 0.008) <= seen.pixel / 2
+    assert np.minimum(seen.width, seen.thickness)[inner].min() > 0.010
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_capped_pen_with_a_flat_body_has_its_tip_under_the_cap_whatever_its_clip_turns_the_frame_to(seed):
+    """A 12 x 9 mm flat body under a round cap 12.6 mm across whose broad clip lies 40 degrees about the axis
+    from the body's flat side: the surface faces turn the frame's thickness axis some 25 degrees off the body's
+    thin side, where the body reads wider than the cap. The least width of each section shows the cap 1.4 times
+    the body whatever the frame's turn."""
+    body = trimesh.creation.box([0.085, 0.012, 0.009])
+    body.apply_translation([0.0425, 0.0, 0.0])
+    clip = trimesh.creation.box([0.05, 0.008, 0.0015])
+    clip.apply_translation([0.11, 0.0, 0.0071])
+    clip.apply_transform(trimesh.transformations.rotation_matrix(np.radians(40.0), [1.0, 0.0, 0.0]))
+    pen = trimesh.util.concatenate([body, _along_x(("cylinder", 0.08, 0.14, 0.0063)), clip])
+    mesh = _scanned(pen, seed)
+    found = find_parts(mesh, "pen")
+    assert found.found, found.note
+    along = (mesh.triangles_center - mesh.triangles_center.mean(axis=0)) @ found.axis
+    tip = found.face_parts == PART_INDEX["tip"]
+    assert along[tip].min() > along.min() + 0.07
+    assert along[~tip].max() < along.min() + 0.09
 
 
 def _spoon_with_a_long_neck(length: float) -> tuple[trimesh.Trimesh, np.ndarray]:

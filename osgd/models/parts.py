@@ -14,7 +14,9 @@ model whose sidecar gives no ``[[parts]]`` regions), the parts of
    into images of :data:`COLUMNS` columns along the axis. Per column: the
    width and thickness, the number of separate runs across the width (the
    gaps between fork tines and pliers arms) and how much of it crosses
-   enclosed holes (a wrench's ring).
+   enclosed holes (a wrench's ring); for the rules of
+   :data:`READS_LEAST_WIDTH` also the least width of each column's section
+   over every direction across *t*, whatever the frame's turn.
 3. **A rule per category** (:data:`SEGMENTERS`; for a taxonomy's own
    elongated categories the generic :func:`elongated`) reads these profiles: which
    end is the handle (the thinner end of a knife is its blade, the wider end
@@ -26,7 +28,8 @@ model whose sidecar gives no ``[[parts]]`` regions), the parts of
    frame's profiles do not show the parts, the rule reads those of the frame
    turned a quarter about *t* (width and thickness swapped: a pliers whose
    thick arms made its frame see it edge-on), with its confidence lowered by
-   :func:`turned_confidence`.
+   :func:`turned_confidence`; not for the rules of :data:`READS_LEAST_WIDTH`,
+   whose reading the turn does not change.
 
 A model whose profile does not show its category's parts (confidence below
 :data:`MIN_CONFIDENCE`, say a plain box called a hammer) gets no labels and a
@@ -49,7 +52,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import trimesh
 from scipy import ndimage
-from scipy.spatial import QhullError
+from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
 from osgd.contract.taxonomy import CATEGORIES, ELONGATED, PART_INDEX, TABLE1, UNKNOWN_PART, CategorySpec, Taxonomy
@@ -59,7 +62,7 @@ COLUMNS: Final[int] = 400
 #: Below this confidence the parts count as not found (no labels, a note).
 MIN_CONFIDENCE: Final[float] = 0.25
 #: Bump whenever the parts found for the same mesh change (it enters the keys of users' models).
-VERSION: Final[int] = 6
+VERSION: Final[int] = 7
 #: A face takes the part of the column this many columns behind it times its normal's component along the
 #: axis (against the normal, into the solid): the end face of a step (a screwdriver handle's front, a spoon
 #: bowl's back) is the wider part's, whatever column the step's own column is given; a face along the axis
@@ -235,6 +238,53 @@ def _enclosed(image: np.ndarray, pixel: float) -> np.ndarray:
     return keep[labels].sum(axis=1) * pixel
 
 
+def _section_points(t: np.ndarray, across: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points of the surface in each column: (P,) column and (P, 2) (u, v).
+
+    Column *c* spans ``t`` in [c - 0.5, c + 0.5) (the silhouettes' pixels). Its points are the vertices in it and
+    where each edge crosses its two borders, so that a face spanning many columns (a procedural tool's side)
+    shows in each of them.
+    """
+    start, end = t[edges[:, 0]], t[edges[:, 1]]
+    first = np.ceil(np.minimum(start, end) - 0.5).astype(np.int64)
+    crossings = np.maximum(np.floor(np.maximum(start, end) - 0.5).astype(np.int64) - first + 1, 0)
+    edge = np.repeat(np.arange(len(edges)), crossings)
+    border = np.arange(int(crossings.sum())) - np.repeat(np.cumsum(crossings) - crossings, crossings) + first[edge]
+    share = (border + 0.5 - start[edge]) / (end[edge] - start[edge])
+    a, b = across[edges[edge, 0]], across[edges[edge, 1]]
+    crossing = a + share[:, None] * (b - a)
+    columns = np.concatenate([np.round(t).astype(np.int64), border, border + 1])
+    return columns, np.concatenate([across, crossing, crossing])
+
+
+def _outline_least_width(points: np.ndarray) -> float:
+    """The least width of 2-D points' convex outline over every direction (0 where they span no area).
+
+    The least width lies across one of the outline's edges (rotating calipers): the smallest, over the edges,
+    of the farthest point's distance from the edge's line.
+    """
+    try:
+        outline = points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):  # fewer than three points, or all on a line
+        return 0.0
+    edges = np.roll(outline, -1, axis=0) - outline
+    normals = np.column_stack([-edges[:, 1], edges[:, 0]]) / np.linalg.norm(edges, axis=1, keepdims=True)
+    reach = np.einsum("ek,evk->ev", normals, outline[None, :, :] - outline[:, None, :])
+    return float(np.abs(reach).max(axis=1).min())
+
+
+def _least_widths(t: np.ndarray, across: np.ndarray, edges: np.ndarray, columns: int, pixel: float) -> np.ndarray:
+    """(columns,) the least width of each column's section (:func:`_section_points`), m, in whole pixels as the
+    silhouettes' extents are (a constant section reads constant, a step is a pixel)."""
+    column, points = _section_points(t, across, edges)
+    inside = (column >= 0) & (column < columns)
+    order = np.argsort(column[inside], kind="stable")
+    column, points = column[inside][order], points[inside][order]
+    bounds = np.searchsorted(column, np.arange(columns + 1))
+    widths = np.array([_outline_least_width(points[bounds[c]:bounds[c + 1]]) for c in range(columns)])
+    return np.round(widths / pixel) * pixel
+
+
 @dataclass(frozen=True)
 class Profiles:
     """A mesh seen along its thickness (top) and its width (side), column by column along its axis.
@@ -258,6 +308,11 @@ class Profiles:
         Separate runs across the width in the top silhouette.
     holes : (C,) float
         How much of the column crosses enclosed holes of the top silhouette, m.
+    least_width : (C,) float or None
+        The least width of each column's section over every direction across the axis (the width of its
+        convex outline between the closest pair of parallel lines), m, smoothed along the axis; whatever the
+        frame's turn about *t*. Only where :func:`profiles` is asked for it (it costs more than the
+        silhouettes on a dense scan).
     """
 
     frame: PrincipalFrame
@@ -271,6 +326,7 @@ class Profiles:
     thickness: np.ndarray
     runs: np.ndarray
     holes: np.ndarray
+    least_width: np.ndarray | None = None
 
     @property
     def columns(self) -> int:
@@ -292,6 +348,7 @@ class Profiles:
             thickness=self.thickness[::-1],
             runs=self.runs[::-1],
             holes=self.holes[::-1],
+            least_width=None if self.least_width is None else self.least_width[::-1],
         )
 
     def at(self, low: float, high: float) -> slice:
@@ -300,7 +357,7 @@ class Profiles:
         return slice(start, max(round(high * self.columns), start + 1))
 
 
-def profiles(mesh: trimesh.Trimesh, frame: PrincipalFrame | None = None) -> Profiles:
+def profiles(mesh: trimesh.Trimesh, frame: PrincipalFrame | None = None, *, least_width: bool = False) -> Profiles:
     """The profiles of a mesh along its principal axis.
 
     Parameters
@@ -309,6 +366,8 @@ def profiles(mesh: trimesh.Trimesh, frame: PrincipalFrame | None = None) -> Prof
         (V, 3) vertices, m; (F, 3) faces.
     frame : PrincipalFrame, optional
         Default: :func:`principal_frame` of the mesh.
+    least_width : bool
+        Also the least width of each column's section (:attr:`Profiles.least_width`).
     """
     frame = frame or principal_frame(mesh)
     pixel = frame.length / COLUMNS
@@ -346,6 +405,8 @@ def profiles(mesh: trimesh.Trimesh, frame: PrincipalFrame | None = None) -> Prof
         thickness=smooth(extents[:, 1]),
         runs=ndimage.median_filter(runs, size=3, mode="nearest"),
         holes=holes,
+        least_width=smooth(_least_widths(grid[:, 0] - kept.start, local[:, 1:], np.asarray(mesh.edges_unique),
+                                         kept.stop - kept.start, pixel)) if least_width else None,
     )
 
 
@@ -620,7 +681,16 @@ def _tip_columns(count: int) -> int:
 
 
 def _pen_size(profiles: Profiles) -> np.ndarray:
+    """A pen's section size where its taper is read: the lesser of width and thickness, in the silhouettes' steps."""
     return np.minimum(profiles.width, profiles.thickness)
+
+
+def _cap_size(profiles: Profiles) -> np.ndarray:
+    """A capped pen's section size: its least width, whichever way round a flat body or a clip lies about the
+    axis (the lesser of width and thickness grows as the frame turns off a flat body's thin side)."""
+    if profiles.least_width is None:
+        raise ValueError("the pen's rule reads the sections' least width: profiles(..., least_width=True)")
+    return profiles.least_width
 
 
 def _longest_flat(steps: np.ndarray) -> int:
@@ -653,7 +723,7 @@ def _pen(profiles: Profiles) -> Segmentation:
     """handle | tip: the tip is the end that tapers to a cone over the longer stretch.
 
     With neither end tapering (a capped pen: the writing tip lies under the cap), the tip is the end under
-    the wider cap, and the cap is the tip part.
+    the wider cap, and the cap is the tip part; the ends are compared by their least width (:func:`_cap_size`).
     """
     size = _pen_size(profiles)
     body = _median(size, profiles.at(0.2, 0.8))
@@ -668,8 +738,8 @@ def _pen(profiles: Profiles) -> Segmentation:
         confidence = _ramp((max(low_end, high_end) + 1) / (min(low_end, high_end) + 1), 1.2, 1.8)
         reason = f"both ends taper alike ({low_end} and {high_end} columns)"
         return Segmentation(_columns(profiles.columns, ("handle", 0), ("tip", tip)), confidence, reason, profiles)
-    profiles, contrast = _orient(profiles, lambda p, w: _median(_pen_size(p), w), PEN_END)
-    size = _pen_size(profiles)
+    profiles, contrast = _orient(profiles, lambda p, w: _median(_cap_size(p), w), PEN_END)
+    size = _cap_size(profiles)
     # The cap runs back from its widest column at the end: its rounded rim may be narrower than the back end.
     end = profiles.at(1.0 - PEN_END, 1.0)
     widest = end.start + int(np.argmax(size[end]))
@@ -819,6 +889,11 @@ SEGMENTERS: Final[dict[str, Callable[[Profiles], Segmentation]]] = {
 
 assert set(SEGMENTERS) == set(CATEGORIES), "every category needs a rule"
 
+#: The categories whose rule reads the sections' least width (:attr:`Profiles.least_width`). Their rules read
+#: nothing that a turn of the frame about the axis changes (a pen's lesser of width and thickness is the same a
+#: quarter turn on), so their profiles are read in the principal frame alone.
+READS_LEAST_WIDTH: Final[frozenset[str]] = frozenset({"pen"})
+
 
 # -- faces -----------------------------------------------------------------------------------------------
 
@@ -915,9 +990,10 @@ def find_parts(mesh: trimesh.Trimesh, category: str, taxonomy: Taxonomy = TABLE1
                 "its sampled grasps get no task: give [[parts]] regions or a [part_labels] file in the sidecar, or "
                 'parts_rule = "elongated" to the category (docs/taxonomy.md)')
         return AutomaticParts(np.full(len(mesh.faces), UNKNOWN_PART, dtype=np.int8), 0.0, False, note, frame)
-    segmentation = segmenter(profiles(mesh, frame))
+    least_width = category in READS_LEAST_WIDTH
+    segmentation = segmenter(profiles(mesh, frame, least_width=least_width))
     confidence = round(float(segmentation.confidence), 3)
-    if confidence < MIN_CONFIDENCE:
+    if confidence < MIN_CONFIDENCE and not least_width:
         turned = segmenter(profiles(mesh, frame.turned()))
         if round(turned_confidence(float(turned.confidence), confidence), 3) >= MIN_CONFIDENCE:
             segmentation = turned
