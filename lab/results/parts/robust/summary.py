@@ -7,6 +7,9 @@ held-out half (pairs, pooled); the procedural stress cases (face area, mean over
 the cases whose parts were not found. A category meets the goal where every figure is at least 95 % and no
 case is unfound. "Before" is the rules of 35dc572: its seed-0 and seed-1 runs were made with the holes case of
 that commit, so their holes cases are replaced by the runs of the holes case of today (before/holes-seed*.json).
+"After" is the rules of 8cc0d46. "Least width" is the rules that compare a capped pen's ends by their least
+width: only the pen's cases change, so at seeds 0-3 the pen's cases of the "after" runs are replaced by runs of
+the pens alone (least-width/pen-seed*.json, `--stress-categories pen`); seed 4 is a full run of each.
 """
 
 from __future__ import annotations
@@ -26,13 +29,20 @@ RUNS = {
     "after, seed 1": (HERE / "seed1.json", None),
     "after, seed 2": (HERE / "seed2.json", None),
     "after, seed 3": (HERE / "seed3.json", None),
+    "after, seed 4": (HERE / "after-seed4.json", None),
+    **{f"least width, seed {seed}": (HERE / f"seed{seed}.json", None, HERE / f"least-width/pen-seed{seed}.json")
+       for seed in range(4)},
+    "least width, seed 4": (HERE / "least-width/seed4.json", None),
 }
 
 
-def cases(path: Path, holes: Path | None) -> list[dict]:
+def cases(path: Path, holes: Path | None, pens: Path | None = None) -> list[dict]:
     records = json.loads(path.read_text())["cases"]
     if holes is not None:
         records = [r for r in records if r["variant"] != "holes"] + json.loads(holes.read_text())["cases"]
+    if pens is not None:
+        records = ([r for r in records if r["category"] != "pen"]
+                   + [r for r in json.loads(pens.read_text())["cases"] if r["category"] == "pen"])
     return records
 
 
@@ -59,11 +69,11 @@ def row(records: list[dict], category: str) -> tuple[list[str], bool]:
 
 
 def main() -> None:
-    for label, (path, holes) in RUNS.items():
-        if not path.exists():
-            print(f"{label}: {path} missing\n")
+    for label, (path, *replaced) in RUNS.items():
+        if not all(part.exists() for part in (path, *replaced) if part is not None):
+            print(f"{label}: a file is missing\n")
             continue
-        records = cases(path, holes)
+        records = cases(path, *replaced)
         print(f"**{label}**\n")
         print("| category | authors held-out | stress tuned | stress held-out | procedural stress | lowest procedural "
               "| not found | goal |")
