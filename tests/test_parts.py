@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -171,19 +172,40 @@ def _scanned(mesh: trimesh.Trimesh, seed: int) -> trimesh.Trimesh:
     return _tilted(trimesh.Trimesh(vertices, faces, process=False), seed)
 
 
-def test_the_least_width_of_each_section_does_not_depend_on_the_turn_about_the_axis():
-    """A 120 x 12 x 8 mm bar turned 30 degrees about its axis: every section's least width is 8 mm (to the
-    nearest pixel), though its twelve faces span the whole length and the frame's width and thickness both read
-    more."""
+@pytest.mark.parametrize("turn", [0.0, 30.0, 55.0])
+def test_the_least_width_of_each_section_does_not_depend_on_the_turn_about_the_axis(turn):
+    """A 120 x 12 x 8 mm bar turned about its axis and read in a fixed frame: every section's least width is
+    8 mm (to the nearest pixel), though its twelve faces span the whole length and, turned, the frame's width
+    and thickness both read more."""
     bar = trimesh.creation.box([0.12, 0.012, 0.008])
-    bar.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30.0), [1.0, 0.0, 0.0]))
-    frame = principal_frame(bar)
-    turned = replace(frame, axes=np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
-    seen = profiles(bar, turned, least_width=True)
+    bar.apply_transform(trimesh.transformations.rotation_matrix(np.radians(turn), [1.0, 0.0, 0.0]))
+    fixed = replace(principal_frame(bar), axes=np.eye(3))
+    seen = profiles(bar, fixed, least_width=True)
     inner = slice(2, seen.columns - 2)
     assert np.ptp(seen.least_width[inner]) == 0  # in whole pixels: a constant section reads constant
     assert abs(seen.least_width[inner][0] - 0.008) <= seen.pixel / 2
-    assert np.minimum(seen.width, seen.thickness)[inner].min() > 0.010
+    if turn:
+        assert np.minimum(seen.width, seen.thickness)[inner].min() > 0.010
+
+
+def test_the_least_width_reads_the_same_in_the_frame_turned_a_quarter():
+    mesh, _ = _remeshed(_tool("pen", 3), seed=4)
+    frame = principal_frame(mesh)
+    principal = profiles(mesh, frame, least_width=True).least_width
+    assert np.array_equal(principal, profiles(mesh, frame.turned(), least_width=True).least_width)
+
+
+def test_an_edge_along_a_column_border_leaves_no_column_empty():
+    """A collar beginning exactly on a border between columns (a CAD mesh of round sizes, lying along its
+    axis): its ring of edges lies on the border, which they cross nowhere; every column keeps its width."""
+    pen = _along_x(("cylinder", 0.0, 0.050125, 0.004), ("cylinder", 0.050125, 0.1, 0.006))
+    frame = replace(principal_frame(pen), axes=np.eye(3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        seen = profiles(pen, frame, least_width=True)
+    inner = seen.least_width[2:-2]
+    assert inner.min() >= 0.008 - seen.pixel
+    assert np.count_nonzero(np.diff(inner) != 0) == 1  # one step, at the collar
 
 
 @pytest.mark.parametrize("seed", [0, 1])

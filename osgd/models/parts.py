@@ -28,8 +28,7 @@ model whose sidecar gives no ``[[parts]]`` regions), the parts of
    frame's profiles do not show the parts, the rule reads those of the frame
    turned a quarter about *t* (width and thickness swapped: a pliers whose
    thick arms made its frame see it edge-on), with its confidence lowered by
-   :func:`turned_confidence`; not for the rules of :data:`READS_LEAST_WIDTH`,
-   whose reading the turn does not change.
+   :func:`turned_confidence`.
 
 A model whose profile does not show its category's parts (confidence below
 :data:`MIN_CONFIDENCE`, say a plain box called a hammer) gets no labels and a
@@ -241,36 +240,47 @@ def _enclosed(image: np.ndarray, pixel: float) -> np.ndarray:
 def _section_points(t: np.ndarray, across: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The points of the surface in each column: (P,) column and (P, 2) (u, v).
 
-    Column *c* spans ``t`` in [c - 0.5, c + 0.5) (the silhouettes' pixels). Its points are the vertices in it and
-    where each edge crosses its two borders, so that a face spanning many columns (a procedural tool's side)
-    shows in each of them.
+    Column *c* spans ``t`` in [c - 0.5, c + 0.5] (the silhouettes' pixels, with their borders). Its points are
+    the vertices in it (one on a border in both columns) and where each edge crosses its borders (in both
+    columns), so that a face spanning many columns (a procedural tool's side) shows in each of them. An edge
+    along a border crosses nothing: its ends are on the border.
     """
     start, end = t[edges[:, 0]], t[edges[:, 1]]
     first = np.ceil(np.minimum(start, end) - 0.5).astype(np.int64)
     crossings = np.maximum(np.floor(np.maximum(start, end) - 0.5).astype(np.int64) - first + 1, 0)
+    crossings[start == end] = 0
     edge = np.repeat(np.arange(len(edges)), crossings)
     border = np.arange(int(crossings.sum())) - np.repeat(np.cumsum(crossings) - crossings, crossings) + first[edge]
     share = (border + 0.5 - start[edge]) / (end[edge] - start[edge])
     a, b = across[edges[edge, 0]], across[edges[edge, 1]]
     crossing = a + share[:, None] * (b - a)
-    columns = np.concatenate([np.round(t).astype(np.int64), border, border + 1])
-    return columns, np.concatenate([across, crossing, crossing])
+    below, above = np.ceil(t - 0.5).astype(np.int64), np.floor(t + 0.5).astype(np.int64)
+    on_border = np.flatnonzero(below != above)
+    columns = np.concatenate([above, below[on_border], border, border + 1])
+    return columns, np.concatenate([across, across[on_border], crossing, crossing])
 
 
 def _outline_least_width(points: np.ndarray) -> float:
     """The least width of 2-D points' convex outline over every direction (0 where they span no area).
 
     The least width lies across one of the outline's edges (rotating calipers): the smallest, over the edges,
-    of the farthest point's distance from the edge's line.
+    of the farthest vertex's distance from the edge's line. Walking the counter-clockwise outline, the
+    farthest vertex from an edge is the one where the edges' direction passes the edge's own turned half a
+    turn.
     """
+    if len(points) < 3:
+        return 0.0
     try:
-        outline = points[ConvexHull(points).vertices]
-    except (QhullError, ValueError):  # fewer than three points, or all on a line
+        outline = points[ConvexHull(points).vertices]  # counter-clockwise in 2-D
+    except QhullError:  # all on a line or at one point
         return 0.0
     edges = np.roll(outline, -1, axis=0) - outline
-    normals = np.column_stack([-edges[:, 1], edges[:, 0]]) / np.linalg.norm(edges, axis=1, keepdims=True)
-    reach = np.einsum("ek,evk->ev", normals, outline[None, :, :] - outline[:, None, :])
-    return float(np.abs(reach).max(axis=1).min())
+    angles = np.unwrap(np.arctan2(edges[:, 1], edges[:, 0]))
+    count = len(outline)
+    opposite = np.searchsorted(np.concatenate([angles, angles + 2 * np.pi]), angles + np.pi) % count
+    directions = edges / np.linalg.norm(edges, axis=1, keepdims=True)
+    reach = outline[opposite] - outline
+    return float(np.abs(directions[:, 0] * reach[:, 1] - directions[:, 1] * reach[:, 0]).min())
 
 
 def _least_widths(t: np.ndarray, across: np.ndarray, edges: np.ndarray, columns: int, pixel: float) -> np.ndarray:
@@ -310,9 +320,9 @@ class Profiles:
         How much of the column crosses enclosed holes of the top silhouette, m.
     least_width : (C,) float or None
         The least width of each column's section over every direction across the axis (the width of its
-        convex outline between the closest pair of parallel lines), m, smoothed along the axis; whatever the
-        frame's turn about *t*. Only where :func:`profiles` is asked for it (it costs more than the
-        silhouettes on a dense scan).
+        convex outline between the closest pair of parallel lines), m, in whole pixels, smoothed along the
+        axis; whatever the frame's turn about *t*. Only where :func:`profiles` is asked for it (it costs
+        more than the silhouettes on a dense scan).
     """
 
     frame: PrincipalFrame
@@ -889,9 +899,8 @@ SEGMENTERS: Final[dict[str, Callable[[Profiles], Segmentation]]] = {
 
 assert set(SEGMENTERS) == set(CATEGORIES), "every category needs a rule"
 
-#: The categories whose rule reads the sections' least width (:attr:`Profiles.least_width`). Their rules read
-#: nothing that a turn of the frame about the axis changes (a pen's lesser of width and thickness is the same a
-#: quarter turn on), so their profiles are read in the principal frame alone.
+#: The categories whose rule reads the sections' least width (:attr:`Profiles.least_width`); their profiles
+#: alone compute it.
 READS_LEAST_WIDTH: Final[frozenset[str]] = frozenset({"pen"})
 
 
@@ -993,8 +1002,8 @@ def find_parts(mesh: trimesh.Trimesh, category: str, taxonomy: Taxonomy = TABLE1
     least_width = category in READS_LEAST_WIDTH
     segmentation = segmenter(profiles(mesh, frame, least_width=least_width))
     confidence = round(float(segmentation.confidence), 3)
-    if confidence < MIN_CONFIDENCE and not least_width:
-        turned = segmenter(profiles(mesh, frame.turned()))
+    if confidence < MIN_CONFIDENCE:
+        turned = segmenter(profiles(mesh, frame.turned(), least_width=least_width))
         if round(turned_confidence(float(turned.confidence), confidence), 3) >= MIN_CONFIDENCE:
             segmentation = turned
             confidence = round(turned_confidence(float(turned.confidence), confidence), 3)

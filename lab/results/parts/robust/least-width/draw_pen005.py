@@ -31,7 +31,8 @@ def main() -> None:
         records = json.loads((HERE / f"pen-seed{seed}.json").read_text())["cases"]
         agree = next(r["score"] for r in records if r["name"] == "pen_005" and r["variant"] == "scan")
         cases.append(bench_parts.Case(f"pen_005 scan, seed {seed}, pairs agree", agree, scanned, None, found))
-    print(bench_parts.draw_cases(cases, HERE.parents[4] / "docs" / "figures" / "parts-pen005-scan.png", columns=2, panel=(5.0, 1.5)))
+    out = HERE.parents[4] / "docs" / "figures" / "parts-pen005-scan.png"
+    print(bench_parts.draw_cases(cases, out, columns=2, panel=(5.0, 1.5)))
 
 
 if __name__ == "__main__":
