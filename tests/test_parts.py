@@ -38,13 +38,20 @@ def _tilted(mesh: trimesh.Trimesh, seed: int) -> trimesh.Trimesh:
     return out
 
 
-def _remeshed(tool: procedural.ProceduralModel, seed: int) -> tuple[trimesh.Trimesh, np.ndarray]:
-    """Remeshed to edges of at most 3 mm, every vertex moved by 0.2 mm noise, tilted: a scan's stand-in."""
+def _scanned(mesh: trimesh.Trimesh, seed: int, max_edge: float = 0.003) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Remeshed to edges of at most ``max_edge``, every vertex moved by 0.2 mm noise, tilted: a scan's stand-in;
+    and the face of ``mesh`` that each of its faces comes from."""
     vertices, faces, index = trimesh.remesh.subdivide_to_size(
-        tool.mesh.vertices, tool.mesh.faces, max_edge=0.003, max_iter=20, return_index=True
+        mesh.vertices, mesh.faces, max_edge=max_edge, max_iter=20, return_index=True
     )
     vertices = vertices + np.random.default_rng(seed).normal(0.0, 0.0002, vertices.shape)
-    return _tilted(trimesh.Trimesh(vertices, faces, process=False), seed), tool.face_parts[index]
+    return _tilted(trimesh.Trimesh(vertices, faces, process=False), seed), index
+
+
+def _remeshed(tool: procedural.ProceduralModel, seed: int) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """:func:`_scanned` at 3 mm edges, and each face's true part."""
+    mesh, index = _scanned(tool.mesh, seed)
+    return mesh, tool.face_parts[index]
 
 
 def _agreement(mesh: trimesh.Trimesh, truth: np.ndarray, found: np.ndarray) -> float:
@@ -165,13 +172,6 @@ def test_a_capped_pen_whose_cap_ends_in_a_long_rounded_rim_has_its_tip_under_the
     assert centres[found.face_parts == PART_INDEX["handle"]].max() < 0.085
 
 
-def _scanned(mesh: trimesh.Trimesh, seed: int) -> trimesh.Trimesh:
-    """Remeshed to edges of at most 2 mm, every vertex moved by 0.2 mm noise, tilted."""
-    vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=0.002, max_iter=20)
-    vertices = vertices + np.random.default_rng(seed).normal(0.0, 0.0002, vertices.shape)
-    return _tilted(trimesh.Trimesh(vertices, faces, process=False), seed)
-
-
 @pytest.mark.parametrize("turn", [0.0, 30.0, 55.0])
 def test_the_least_width_of_each_section_does_not_depend_on_the_turn_about_the_axis(turn):
     """A 120 x 12 x 8 mm bar turned about its axis and read in a fixed frame: every section's least width is
@@ -220,7 +220,7 @@ def test_a_capped_pen_with_a_flat_body_has_its_tip_under_the_cap_whatever_its_cl
     clip.apply_translation([0.11, 0.0, 0.0071])
     clip.apply_transform(trimesh.transformations.rotation_matrix(np.radians(40.0), [1.0, 0.0, 0.0]))
     pen = trimesh.util.concatenate([body, _along_x(("cylinder", 0.08, 0.14, 0.0063)), clip])
-    mesh = _scanned(pen, seed)
+    mesh, _ = _scanned(pen, seed, max_edge=0.002)
     found = find_parts(mesh, "pen")
     assert found.found, found.note
     along = (mesh.triangles_center - mesh.triangles_center.mean(axis=0)) @ found.axis

@@ -16,33 +16,39 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 HERE = Path(__file__).resolve().parent
 PARTS = HERE.parent
 CATEGORIES = ("knife", "screwdriver", "spoon", "fork", "wrench", "hammer", "pen", "toothbrush", "spatula", "pliers")
+class Run(NamedTuple):
+    """One draw's cases: a bench_parts JSON, with its holes cases or its pens' cases taken from another."""
+
+    path: Path
+    holes: Path | None = None
+    pens: Path | None = None
+
+
 RUNS = {
-    "before, seed 0": (PARTS / "pen-steps/bench_parts-full.json", HERE / "before/before-holes-seed0.json"),
-    "before, seed 1": (PARTS / "seed1/bench_parts-full.json", HERE / "before/before-holes-seed1.json"),
-    "before, seed 2": (HERE / "before/before-seed2.json", None),
-    "before, seed 3": (HERE / "before/before-seed3.json", None),
-    "after, seed 0": (HERE / "seed0.json", None),
-    "after, seed 1": (HERE / "seed1.json", None),
-    "after, seed 2": (HERE / "seed2.json", None),
-    "after, seed 3": (HERE / "seed3.json", None),
-    "after, seed 4": (HERE / "after-seed4.json", None),
-    **{f"least width, seed {seed}": (HERE / f"seed{seed}.json", None, HERE / f"least-width/pen-seed{seed}.json")
+    "before, seed 0": Run(PARTS / "pen-steps/bench_parts-full.json", holes=HERE / "before/before-holes-seed0.json"),
+    "before, seed 1": Run(PARTS / "seed1/bench_parts-full.json", holes=HERE / "before/before-holes-seed1.json"),
+    "before, seed 2": Run(HERE / "before/before-seed2.json"),
+    "before, seed 3": Run(HERE / "before/before-seed3.json"),
+    **{f"after, seed {seed}": Run(HERE / f"seed{seed}.json") for seed in range(4)},
+    "after, seed 4": Run(HERE / "after-seed4.json"),
+    **{f"least width, seed {seed}": Run(HERE / f"seed{seed}.json", pens=HERE / f"least-width/pen-seed{seed}.json")
        for seed in range(4)},
-    "least width, seed 4": (HERE / "least-width/seed4.json", None),
+    "least width, seed 4": Run(HERE / "least-width/seed4.json"),
 }
 
 
-def cases(path: Path, holes: Path | None, pens: Path | None = None) -> list[dict]:
-    records = json.loads(path.read_text())["cases"]
-    if holes is not None:
-        records = [r for r in records if r["variant"] != "holes"] + json.loads(holes.read_text())["cases"]
-    if pens is not None:
+def cases(run: Run) -> list[dict]:
+    records = json.loads(run.path.read_text())["cases"]
+    if run.holes is not None:
+        records = [r for r in records if r["variant"] != "holes"] + json.loads(run.holes.read_text())["cases"]
+    if run.pens is not None:
         records = ([r for r in records if r["category"] != "pen"]
-                   + [r for r in json.loads(pens.read_text())["cases"] if r["category"] == "pen"])
+                   + [r for r in json.loads(run.pens.read_text())["cases"] if r["category"] == "pen"])
     return records
 
 
@@ -69,11 +75,11 @@ def row(records: list[dict], category: str) -> tuple[list[str], bool]:
 
 
 def main() -> None:
-    for label, (path, *replaced) in RUNS.items():
-        if not all(part.exists() for part in (path, *replaced) if part is not None):
+    for label, run in RUNS.items():
+        if not all(part.exists() for part in run if part is not None):
             print(f"{label}: a file is missing\n")
             continue
-        records = cases(path, *replaced)
+        records = cases(run)
         print(f"**{label}**\n")
         print("| category | authors held-out | stress tuned | stress held-out | procedural stress | lowest procedural "
               "| not found | goal |")
