@@ -40,6 +40,7 @@ from togcrf.robot.protocol import (
     PAPER_TABLE3,
     PAPER_TOTAL,
     ROBOT_SCENE_OFFSET,
+    TABLE_TASKS,
     TOOL_TASKS,
     Trial,
     check_fresh,
@@ -210,6 +211,30 @@ def test_table3_totals_are_the_mean_of_the_task_rates() -> None:
         for index in (0, 1):
             assert np.mean([value[index] for value in PAPER_TABLE3[name].values()]) == pytest.approx(total[index],
                                                                                                     abs=0.05)
+
+
+def _protocol_rows(success: int, *, tool_trials: int = 10, named_trials: int = 30) -> list[dict]:
+    """Trials of the 12 tasks with ``success`` of every ten a success (GSR-S and GSR-T alike)."""
+    return [{"task": task, "gsr_s": index % 10 < success, "gsr_t": index % 10 < success}
+            for task in TABLE_TASKS
+            for index in range(named_trials if task in NAMED_TASKS else tool_trials)]
+
+
+def test_table3_summaries_have_95_percent_intervals_that_narrow_with_the_trials() -> None:
+    table = rates(_protocol_rows(5))
+    low, high = table["Total"]["gsr_t_interval"]
+    # the mean of 10 rates over 10 trials and 2 over 30, each at 0.5: standard error 100 * sqrt(0.25 * (10 / 10
+    # + 2 / 30)) / 12 = 4.3 points
+    assert low == pytest.approx(50.0 - 1.96 * 4.3, abs=1.2) and high == pytest.approx(50.0 + 1.96 * 4.3, abs=1.2)
+    assert table["Total"]["gsr_s_interval"] == [low, high], "GSR-S of the same outcomes, the same interval"
+    pooled_low, pooled_high = table["All trials"]["gsr_t_interval"]
+    assert pooled_low < 50.0 < pooled_high and pooled_high - pooled_low < high - low
+    tripled = rates(_protocol_rows(5, tool_trials=30, named_trials=90))["Total"]["gsr_t_interval"]
+    assert (tripled[1] - tripled[0]) == pytest.approx((high - low) / np.sqrt(3), rel=0.1)
+    assert rates(_protocol_rows(5))["Total"]["gsr_t_interval"] == [low, high], "one log, one interval"
+    assert rates(_protocol_rows(10))["Total"]["gsr_t_interval"] == [100.0, 100.0]
+    markdown = report.format_table3({"tog": table}, paper=False)
+    assert f"| Total, 95 % interval | {low:.1f}-{high:.1f} | {low:.1f}-{high:.1f} |  |" in markdown
 
 
 def _golden_data_dir(root: Path) -> Path:

@@ -107,12 +107,16 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     dict
         Per task present (:func:`table_tasks` order): ``trials``, ``gsr_s``,
         ``gsr_t`` (percent); ``Total``: the mean of the task rates, as the
-        paper's total; ``All trials``: pooled over every trial.
+        paper's total; ``All trials``: pooled over every trial. The two
+        summaries also hold ``gsr_s_interval`` and ``gsr_t_interval``, their
+        95 % intervals (percent, :func:`summary_intervals`).
     """
     table: dict[str, dict[str, Any]] = {}
+    outcomes: dict[str, np.ndarray] = {}
     for task in table_tasks(row["task"] for row in rows):
         chosen = [row for row in rows if row["task"] == task]
         if chosen:
+            outcomes[task] = np.array([[row["gsr_s"], row["gsr_t"]] for row in chosen], dtype=float)
             table[task] = {"trials": len(chosen), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in chosen]),
                            "gsr_t": 100.0 * np.mean([row["gsr_t"] for row in chosen])}
     if table:
@@ -121,7 +125,36 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
                           "gsr_t": float(np.mean([entry["gsr_t"] for entry in table.values()]))}
         table["All trials"] = {"trials": len(rows), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in rows]),
                                "gsr_t": 100.0 * np.mean([row["gsr_t"] for row in rows])}
+        for index, metric in enumerate(("gsr_s", "gsr_t")):
+            intervals = summary_intervals([column[:, index] for column in outcomes.values()])
+            for summary, interval in intervals.items():
+                table[summary][f"{metric}_interval"] = interval
     return table
+
+
+#: Draws of the bootstrap behind :func:`summary_intervals`, and its seed: one log always gives one interval.
+INTERVAL_DRAWS = 20_000
+INTERVAL_SEED = 0
+
+
+def summary_intervals(outcomes: Sequence[np.ndarray]) -> dict[str, list[float]]:
+    """95 % intervals (percent) of the Total and the All trials rate of one outcome (GSR-S or GSR-T).
+
+    ``outcomes`` holds each task's trials as 0 / 1. The interval is the
+    2.5 and 97.5 percentiles of a bootstrap that resamples each task's
+    trials with replacement (so each task keeps its count, as the protocol
+    fixes it): a resampled task's successes are binomial at its observed
+    rate. It reflects the trials' chance, not the spread between seeds of a
+    checkpoint; a task whose trials all agree adds no width.
+    """
+    rng = np.random.default_rng(INTERVAL_SEED)
+    counts = np.array([len(column) for column in outcomes], dtype=float)
+    successes = np.stack([rng.binomial(len(column), float(np.mean(column)), size=INTERVAL_DRAWS)
+                          for column in outcomes])
+    draws = {"Total": 100.0 * (successes / counts[:, None]).mean(axis=0),
+             "All trials": 100.0 * successes.sum(axis=0) / counts.sum()}
+    return {summary: [float(bound) for bound in np.percentile(values, [2.5, 97.5])]
+            for summary, values in draws.items()}
 
 
 def table_tasks(tasks: Iterable[str]) -> list[str]:
@@ -173,7 +206,21 @@ def format_table3(tables: Mapping[str, Mapping[str, Mapping[str, Any]]], paper: 
             cells += [_cell(_paper_value(name, task, index)) for name in paper_names]
         cells.append("/".join(str(count) for count in trials))
         lines.append("| " + " | ".join(cells) + " |")
+        if task in summaries and any("gsr_t_interval" in table.get(task, {}) for table in tables.values()):
+            lines.append(_interval_line(tables, task, len(paper_names)))
     return "\n".join(lines)
+
+
+def _interval_line(tables: Mapping[str, Mapping[str, Mapping[str, Any]]], task: str, paper_columns: int) -> str:
+    """The 95 % intervals of a summary row, a cell per policy and metric (blank where a table has none)."""
+    cells = [f"{task}, 95 % interval"]
+    for metric in ("gsr_s", "gsr_t"):
+        for table in tables.values():
+            bounds = table.get(task, {}).get(f"{metric}_interval")
+            cells.append("" if bounds is None else f"{bounds[0]:.1f}-{bounds[1]:.1f}")
+        cells += [""] * paper_columns
+    cells.append("")
+    return "| " + " | ".join(cells) + " |"
 
 
 def _paper_value(name: str, task: str, index: int) -> float | None:
