@@ -45,6 +45,7 @@ from togcrf.robot.protocol import (
     Trial,
     check_fresh,
     protocol_trials,
+    untried_tasks,
 )
 from togcrf.robot.report import TRIAL_LOG, rates, read_logs, write_log
 from togcrf.robot.run import RunSpec, make_policies, run_trials
@@ -211,6 +212,21 @@ def test_table3_totals_are_the_mean_of_the_task_rates() -> None:
         for index in (0, 1):
             assert np.mean([value[index] for value in PAPER_TABLE3[name].values()]) == pytest.approx(total[index],
                                                                                                     abs=0.05)
+
+
+def test_tasks_that_the_models_cannot_serve_are_named_not_tried() -> None:
+    # the paper authors' models: stable "hand over" grasps, no "no task" grasp, no brush
+    eligible = {"hand over": ["knife", "spoon"], "cut": ["knife"], "ladle": ["spoon"]}
+    afforded = {"hand over", "cut", "ladle"}
+    untried = untried_tasks(TABLE_TASKS, eligible, afforded)
+    assert set(untried) == set(TABLE_TASKS) - afforded
+    assert "stable 'no task' grasp" in untried["no task"] and "'brush'" in untried["brush"]
+    assert untried_tasks(("cut", "hand over"), eligible, afforded) == {}
+    tried = [task for task in TABLE_TASKS if task not in untried]
+    trials = protocol_trials(0, eligible, 2, 3, tried)
+    assert [trial.task for trial in trials] == ["cut"] * 2 + ["ladle"] * 2 + ["hand over"] * 3
+    with pytest.raises(ValueError, match="no task"):
+        protocol_trials(0, eligible, 2, 3, ["no task"])
 
 
 def _protocol_rows(success: int, *, tool_trials: int = 10, named_trials: int = 30) -> list[dict]:

@@ -17,7 +17,7 @@ import typer
 
 from togcrf.checkpoint import checkpoint_path, read_checkpoint
 from togcrf.evaluate import command_line, write_json
-from togcrf.robot.protocol import check_fresh, protocol_trials
+from togcrf.robot.protocol import check_fresh, protocol_trials, untried_tasks
 from togcrf.robot.report import format_table3, policy_tables, read_logs, reason_counts, timing_summary, write_log
 from togcrf.tta import check_view_count
 
@@ -113,6 +113,12 @@ def robot_eval_command(
     chosen_tasks = _tasks(tasks, pipeline.taxonomy.tasks)
     check_fresh(pipeline.params["scenes"].count, (), ())
     world = load_world(data, pipeline)
+    untried = untried_tasks(chosen_tasks, world.eligible_categories(), world.afforded_tasks())
+    for task, reason in untried.items():
+        typer.echo(f"not tried: {task!r}: {reason} (Total is the mean of the tasks tried)")
+    chosen_tasks = tuple(task for task in chosen_tasks if task not in untried)
+    if not chosen_tasks:
+        raise ValueError(f"{config}: none of the tasks asked for can be tried on the pipeline's models")
     trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks,
                              pipeline.taxonomy)
     spec = RunSpec(config, overrides, data, policies, out, min_score=min_score, min_stability=min_stability,
@@ -127,7 +133,7 @@ def robot_eval_command(
     check_fresh(pipeline.params["scenes"].count, (row["pile_seed"] for row in rows), stored_scene_seeds(data))
     text = write_results(out, rows, {"command": command_line(), "config": str(config), "overrides": list(overrides),
                                      "policies": list(policies), "views": views, "trials": len(trials),
-                                     "tools": len(world.models), "novel_tools": novel,
+                                     "tools": len(world.models), "novel_tools": novel, "untried_tasks": untried,
                                      "workers": workers,
                                      "seconds": time.perf_counter() - started})
     typer.echo(text)

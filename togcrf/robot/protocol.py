@@ -105,6 +105,26 @@ def named_category(seed: int, task: str, task_index: int, repeat: int, eligible:
     return choices[int(trial_rng(seed, task_index, repeat, 0).integers(len(choices)))]
 
 
+def untried_tasks(tasks: Iterable[str], eligible: Mapping[str, Sequence[str]],
+                  afforded: Iterable[str]) -> dict[str, str]:
+    """The tasks that cannot be tried on a set of models, each with the reason.
+
+    A named task ("no task", "hand over") needs a category with a stable
+    grasp of it to name (``eligible``, as :func:`protocol_trials` takes it);
+    a tool task needs a model whose grasps carry it (``afforded``: every task
+    of the models' grasps). A model set annotated without "no task" grasps
+    (the paper authors' models) cannot be tried on "no task".
+    """
+    afforded = set(afforded)
+    untried = {}
+    for task in tasks:
+        if task in NAMED_TASKS and not eligible.get(task):
+            untried[task] = f"no category of the models has a stable {task!r} grasp"
+        elif task not in NAMED_TASKS and task not in afforded:
+            untried[task] = f"no grasp of the models is labelled {task!r}"
+    return untried
+
+
 def protocol_trials(seed: int, eligible: Mapping[str, Sequence[str]], tool_trials: int = 10,
                     named_trials: int = 30, tasks: Iterable[str] | None = None,
                     taxonomy: Taxonomy = TABLE1) -> list[Trial]:

@@ -108,6 +108,10 @@ class World:
         """Whether a category can do a tool task: its models have grasps labelled with it."""
         return task in self._category_tasks().get(category, set())
 
+    def afforded_tasks(self) -> set[str]:
+        """Every task that some model's grasps are labelled with."""
+        return set().union(*self._category_tasks().values())
+
     def _category_tasks(self) -> dict[str, set[str]]:
         tasks: dict[str, set[str]] = defaultdict(set)
         for model_id, grasps in self.grasps.items():
