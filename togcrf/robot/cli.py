@@ -113,14 +113,14 @@ def robot_eval_command(
     chosen_tasks = _tasks(tasks, pipeline.taxonomy.tasks)
     check_fresh(pipeline.params["scenes"].count, (), ())
     world = load_world(data, pipeline)
-    untried = untried_tasks(chosen_tasks, world.eligible_categories(), world.afforded_tasks())
+    eligible = world.eligible_categories()
+    untried = untried_tasks(chosen_tasks, eligible, world.afforded_tasks())
     for task, reason in untried.items():
         typer.echo(f"not tried: {task!r}: {reason} (Total is the mean of the tasks tried)")
     chosen_tasks = tuple(task for task in chosen_tasks if task not in untried)
     if not chosen_tasks:
         raise ValueError(f"{config}: none of the tasks asked for can be tried on the pipeline's models")
-    trials = protocol_trials(world.seed, world.eligible_categories(), tool_trials, named_trials, chosen_tasks,
-                             pipeline.taxonomy)
+    trials = protocol_trials(world.seed, eligible, tool_trials, named_trials, chosen_tasks, pipeline.taxonomy)
     spec = RunSpec(config, overrides, data, policies, out, min_score=min_score, min_stability=min_stability,
                    views=views, pictures=pictures, require_clear=not any_pile)
     novel = novel_tools(list(checkpoints or []), set(world.models))

@@ -91,6 +91,10 @@ def trial_rng(seed: int, task_index: int, repeat: int, purpose: int) -> np.rando
     return np.random.default_rng(np.random.SeedSequence([seed % 2**64, _SALT, task_index, repeat, purpose]))
 
 
+def _no_stable_grasp(task: str) -> str:
+    return f"no category of the models has a stable {task!r} grasp"
+
+
 def named_category(seed: int, task: str, task_index: int, repeat: int, eligible: Mapping[str, Sequence[str]]) -> str:
     """The category named for a "no task" or "hand over" trial, uniform over the eligible ones.
 
@@ -101,7 +105,7 @@ def named_category(seed: int, task: str, task_index: int, repeat: int, eligible:
     """
     choices = sorted(eligible.get(task, ()))
     if not choices:
-        raise ValueError(f"no category of the models has a stable {task!r} grasp: the task cannot be tried")
+        raise ValueError(f"{_no_stable_grasp(task)}: the task cannot be tried")
     return choices[int(trial_rng(seed, task_index, repeat, 0).integers(len(choices)))]
 
 
@@ -119,7 +123,7 @@ def untried_tasks(tasks: Iterable[str], eligible: Mapping[str, Sequence[str]],
     untried = {}
     for task in tasks:
         if task in NAMED_TASKS and not eligible.get(task):
-            untried[task] = f"no category of the models has a stable {task!r} grasp"
+            untried[task] = _no_stable_grasp(task)
         elif task not in NAMED_TASKS and task not in afforded:
             untried[task] = f"no grasp of the models is labelled {task!r}"
     return untried

@@ -117,8 +117,8 @@ def rates(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
         chosen = [row for row in rows if row["task"] == task]
         if chosen:
             outcomes[task] = np.array([[row["gsr_s"], row["gsr_t"]] for row in chosen], dtype=float)
-            table[task] = {"trials": len(chosen), "gsr_s": 100.0 * np.mean([row["gsr_s"] for row in chosen]),
-                           "gsr_t": 100.0 * np.mean([row["gsr_t"] for row in chosen])}
+            gsr_s, gsr_t = 100.0 * outcomes[task].mean(axis=0)
+            table[task] = {"trials": len(chosen), "gsr_s": float(gsr_s), "gsr_t": float(gsr_t)}
     if table:
         table["Total"] = {"trials": sum(entry["trials"] for entry in table.values()),
                           "gsr_s": float(np.mean([entry["gsr_s"] for entry in table.values()])),

@@ -8,6 +8,7 @@ Run from the repository root: `.venv/bin/python lab/results/recipe-seed1/summary
 from __future__ import annotations
 
 import json
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ SETS = ("seen", "novel", "authors")
 SUMMARIES = ("Total", "All trials")
 
 
+@cache
 def _sets(seed: int) -> dict:
     document = json.loads((RUNS[seed] / "table2-sets.json").read_text())
     (run,) = document["runs"].values()
